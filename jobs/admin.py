@@ -1,0 +1,76 @@
+"""Jobs in the Django admin: list, filter, search and act on them."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from django.contrib import admin, messages
+
+from jobs.models import ACTIVE_STATES, Job
+from jobs.services import request_action
+
+if TYPE_CHECKING:
+    from django.db.models import QuerySet
+    from django.http import HttpRequest
+
+
+@admin.register(Job)
+class JobAdmin(admin.ModelAdmin):
+    list_display = [
+        "id",
+        "name",
+        "printer",
+        "state",
+        "progress_percent",
+        "lines_acked",
+        "line_count",
+        "created_at",
+        "finished_at",
+    ]
+    list_filter = ["state", "printer"]
+    search_fields = ["name", "sha256", "origin"]
+    readonly_fields = [
+        "file",
+        "size_bytes",
+        "line_count",
+        "sha256",
+        "lines_sent",
+        "lines_acked",
+        "bytes_acked",
+        "started_at",
+        "finished_at",
+        "state",
+        "message",
+    ]
+    actions = ["abort", "requeue", "delete_with_files"]
+
+    @admin.display(description="progress")
+    def progress_percent(self, job: Job) -> str:
+        return f"{job.progress * 100:.1f} %"
+
+    @admin.action(description="Abort the running job")
+    def abort(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        for job in queryset.filter(state__in=ACTIVE_STATES):
+            request_action(job.printer, "abort", origin=f"admin:{request.user}")
+
+    @admin.action(description="Queue again")
+    def requeue(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        count = queryset.exclude(state__in=ACTIVE_STATES).update(
+            state=Job.State.QUEUED,
+            lines_sent=0,
+            lines_acked=0,
+            bytes_acked=0,
+            message="",
+            started_at=None,
+            finished_at=None,
+        )
+        messages.info(request, f"{count} job(s) queued again")
+
+    @admin.action(description="Delete with their files")
+    def delete_with_files(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        busy = queryset.filter(state__in=ACTIVE_STATES).count()
+        for job in queryset.exclude(state__in=ACTIVE_STATES):
+            job.path.unlink(missing_ok=True)
+            job.delete()
+        if busy:
+            messages.warning(request, f"{busy} running job(s) kept: abort them first")

@@ -1,0 +1,119 @@
+"""Printers, the request queue and the response log in the Django admin."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from django.contrib import admin, messages
+
+from jobs.services import emergency_stop, request_action
+from printers.models import Printer, QueuedCommand, ResponseLine
+
+if TYPE_CHECKING:
+    from django.db.models import QuerySet
+    from django.http import HttpRequest
+
+
+@admin.register(Printer)
+class PrinterAdmin(admin.ModelAdmin):
+    list_display = ["name", "slug", "firmware", "port", "baud", "state", "enabled"]
+    list_filter = ["firmware", "state", "enabled"]
+    search_fields = ["name", "slug", "port"]
+    prepopulated_fields = {"slug": ["name"]}
+    readonly_fields = [
+        "state",
+        "state_message",
+        "firmware_name",
+        "capabilities",
+        "temperatures",
+        "machine_status",
+        "lease_owner",
+        "lease_expires_at",
+        "worker_seen_at",
+    ]
+    actions = ["mark_bed_clear", "stop_now", "reconnect"]
+    fieldsets = [
+        (None, {"fields": ["name", "slug", "enabled", "port", "baud", "firmware"]}),
+        (
+            "Link",
+            {
+                "fields": [
+                    "checksums",
+                    "flow",
+                    "rx_buffer",
+                    "bufsize",
+                    "max_line_length",
+                    "ack_timeout",
+                    "busy_timeout",
+                    "max_resends",
+                    "temperature_interval",
+                    "status_interval",
+                ]
+            },
+        ),
+        (
+            "Scripts",
+            {
+                "fields": [
+                    "connect_script",
+                    "start_script",
+                    "end_script",
+                    "pause_script",
+                    "resume_script",
+                    "abort_script",
+                    "auto_start",
+                ]
+            },
+        ),
+        ("Other", {"fields": ["response_log_limit", "simulator"]}),
+        ("Live (written by the worker)", {"fields": readonly_fields}),
+    ]
+
+    @admin.action(description="The bed is clear: start the next job")
+    def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        for printer in queryset:
+            request_action(printer, "bed_clear", origin=f"admin:{request.user}")
+        messages.info(request, f"asked {queryset.count()} printer(s) to start")
+
+    @admin.action(description="EMERGENCY STOP")
+    def stop_now(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        for printer in queryset:
+            emergency_stop(printer, origin=f"admin:{request.user}")
+        messages.warning(
+            request, f"emergency stop sent to {queryset.count()} printer(s)"
+        )
+
+    @admin.action(description="Reconnect")
+    def reconnect(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        for printer in queryset:
+            request_action(printer, "reconnect", origin=f"admin:{request.user}")
+
+
+@admin.register(QueuedCommand)
+class QueuedCommandAdmin(admin.ModelAdmin):
+    list_display = [
+        "id",
+        "printer",
+        "kind",
+        "text",
+        "state",
+        "reply",
+        "origin",
+        "created_at",
+    ]
+    list_filter = ["kind", "state", "printer"]
+    search_fields = ["text", "origin"]
+    readonly_fields = ["state", "reply", "done_at"]
+
+
+@admin.register(ResponseLine)
+class ResponseLineAdmin(admin.ModelAdmin):
+    list_display = ["seq", "printer", "time", "kind", "text"]
+    list_filter = ["printer", "kind"]
+    search_fields = ["text"]
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False
+
+    def has_change_permission(self, request: HttpRequest, obj: object = None) -> bool:
+        return False

@@ -1,0 +1,41 @@
+"""`manage.py runhost`: daphne plus one worker (and simulator) per enabled printer."""
+
+from __future__ import annotations
+
+import signal
+from typing import TYPE_CHECKING, Any
+
+from django.core.management.base import BaseCommand
+
+from printers.supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from argparse import ArgumentParser
+    from types import FrameType
+
+
+class Command(BaseCommand):
+    help = (
+        "Serve the web UI/API and run one worker per enabled printer, restarting them."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        parser.add_argument("--bind", default="127.0.0.1")
+        parser.add_argument("--port", type=int, default=8000)
+        parser.add_argument("--no-web", action="store_true", help="workers only")
+
+    def handle(self, *args: Any, **options: Any) -> None:
+        self.supervisor = Supervisor(
+            bind=options["bind"], port=options["port"], serve_web=not options["no_web"]
+        )
+        signal.signal(signal.SIGTERM, self.on_signal)
+        signal.signal(signal.SIGINT, self.on_signal)
+        if not options["no_web"]:
+            self.stdout.write(
+                f"printhost on http://{options['bind']}:{options['port']}/"
+            )
+        self.supervisor.run()
+        self.stdout.write("printhost stopped")
+
+    def on_signal(self, signum: int, frame: FrameType | None) -> None:
+        self.supervisor.shutdown = True

@@ -1,0 +1,63 @@
+"""`manage.py setup_demo`: a demo admin and two simulated printers, if none exist."""
+
+from __future__ import annotations
+
+import secrets
+from pathlib import Path
+from typing import Any
+
+from django.conf import settings
+from django.contrib.auth import get_user_model
+from django.core.management.base import BaseCommand
+
+from jobs.services import storage_dir
+from printers.models import Printer
+
+
+def demo_gcode(size: float = 40.0, loops: int = 10) -> str:
+    """A small square spiral, enough to watch a job stream on a simulator."""
+    lines = ["; printhost demo: a square spiral", "G21", "G90", "G28", "G1 Z0.3 F1200"]
+    for loop in range(loops):
+        inset = loop * 1.5
+        low, high = 10 + inset, 10 + size - inset
+        for x, y in ((low, low), (high, low), (high, high), (low, high)):
+            lines.append(f"G1 X{x:.2f} Y{y:.2f} F3000")
+    lines.append("M84")
+    return "\n".join(lines) + "\n"
+
+
+class Command(BaseCommand):
+    help = "Create a demo admin and two simulated printers (Marlin and GRBL) if none exist."
+
+    def handle(self, *args: Any, **options: Any) -> None:
+        self._admin()
+        if Printer.objects.exists():
+            self.stdout.write("printers already exist; no demo printers added")
+            return
+        links = Path(settings.DATA_DIR) / "sim"
+        links.mkdir(parents=True, exist_ok=True)
+        for slug, name, firmware, baud in (
+            ("marlin-sim", "Marlin (simulated)", "marlin", 250000),
+            ("grbl-sim", "GRBL (simulated)", "grbl", 115200),
+        ):
+            link = links / slug
+            printer = Printer.objects.create(
+                name=name,
+                slug=slug,
+                firmware=firmware,
+                port=str(link),
+                baud=baud,
+                simulator=f"{firmware} --link {link} --baud {baud} --latency-ms 1",
+                pause_script="G91\nG1 Z5\nG90" if firmware == "marlin" else "",
+            )
+            (storage_dir(printer) / "demo-square.gcode").write_text(demo_gcode())
+            self.stdout.write(f"added {printer}, simulated on {link}")
+
+    def _admin(self) -> None:
+        users = get_user_model()
+        if users.objects.filter(username="admin").exists():
+            self.stdout.write("demo admin exists (user: admin)")
+            return
+        password = secrets.token_urlsafe(9)
+        users.objects.create_superuser("admin", "admin@localhost", password)
+        self.stdout.write(f"demo admin created: user admin, password {password}")

@@ -1,0 +1,200 @@
+"""Printers, the script/emergency queue rows other processes write, and the response log."""
+
+from __future__ import annotations
+
+from django.core.validators import MaxValueValidator, MinValueValidator, RegexValidator
+from django.db import models
+
+_SLUG = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - and _")
+
+
+class Printer(models.Model):
+    """One machine on one port, driven by exactly one worker (the lease says which)."""
+
+    class Firmware(models.TextChoices):
+        MARLIN = "marlin", "Marlin"
+        REPRAP = "reprap", "RepRapFirmware"
+        REPETIER = "repetier", "Repetier firmware"
+        GRBL = "grbl", "GRBL 1.1"
+
+    class Checksums(models.TextChoices):
+        ALWAYS = "always", "always"
+        PRINTING = "printing", "only while printing"
+        NEVER = "never", "never"
+
+    class Flow(models.TextChoices):
+        AUTO = "auto", "ping-pong until ADVANCED_OK is seen"
+        PING_PONG = "ping_pong", "ping-pong (one command in flight)"
+        BUFFERED = "buffered", "byte and line budget (Repetier-Host style)"
+
+    class State(models.TextChoices):
+        OFFLINE = "offline", "offline"
+        CONNECTING = "connecting", "connecting"
+        IDLE = "idle", "idle"
+        PRINTING = "printing", "printing"
+        PAUSED = "paused", "paused"
+        WAITSTART = "waitstart", "waiting for the bed to be cleared"
+        ERROR = "error", "error"
+
+    name = models.CharField(max_length=100)
+    slug = models.SlugField(max_length=50, unique=True, validators=[_SLUG])
+    enabled = models.BooleanField(default=True, help_text="runhost starts a worker")
+    port = models.CharField(
+        max_length=255,
+        help_text="/dev/ttyUSB0, a pty path, socket://host:port or rfc2217://host:port",
+    )
+    baud = models.PositiveIntegerField(default=115200)
+    firmware = models.CharField(
+        max_length=16, choices=Firmware.choices, default=Firmware.MARLIN
+    )
+    checksums = models.CharField(
+        max_length=16, choices=Checksums.choices, default=Checksums.PRINTING
+    )
+    flow = models.CharField(max_length=16, choices=Flow.choices, default=Flow.AUTO)
+    rx_buffer = models.PositiveIntegerField(
+        default=127,
+        validators=[MinValueValidator(16), MaxValueValidator(65536)],
+        help_text="bytes the firmware's serial receive buffer holds (window budget)",
+    )
+    bufsize = models.PositiveIntegerField(
+        default=4,
+        validators=[MinValueValidator(1), MaxValueValidator(256)],
+        help_text="commands the firmware queues (Marlin BUFSIZE)",
+    )
+    max_line_length = models.PositiveIntegerField(
+        default=0, help_text="longest command line; 0 = the firmware's default"
+    )
+    ack_timeout = models.FloatField(default=10.0, validators=[MinValueValidator(0.1)])
+    busy_timeout = models.FloatField(default=30.0, validators=[MinValueValidator(0.1)])
+    max_resends = models.PositiveIntegerField(default=10)
+    temperature_interval = models.FloatField(
+        default=2.0, help_text="seconds between temperature reports (0 = off)"
+    )
+    status_interval = models.FloatField(
+        default=0.2, help_text="GRBL: seconds between `?` status polls (0 = off)"
+    )
+    connect_script = models.TextField(blank=True)
+    start_script = models.TextField(blank=True, help_text="runs before each job")
+    end_script = models.TextField(blank=True, help_text="runs after a completed job")
+    pause_script = models.TextField(blank=True)
+    resume_script = models.TextField(blank=True)
+    abort_script = models.TextField(blank=True)
+    auto_start = models.BooleanField(
+        default=False, help_text="start the next job without waiting for a clear bed"
+    )
+    response_log_limit = models.PositiveIntegerField(
+        default=20000, help_text="response lines kept in the database"
+    )
+    simulator = models.CharField(
+        max_length=255,
+        blank=True,
+        help_text="simulate_printer arguments; runhost starts this simulator",
+    )
+
+    # Written by the worker only.
+    state = models.CharField(
+        max_length=16, choices=State.choices, default=State.OFFLINE
+    )
+    state_message = models.TextField(blank=True)
+    firmware_name = models.CharField(max_length=255, blank=True)
+    capabilities = models.JSONField(default=dict, blank=True)
+    temperatures = models.JSONField(default=dict, blank=True)
+    machine_status = models.JSONField(default=dict, blank=True)
+    lease_owner = models.CharField(max_length=100, blank=True)
+    lease_expires_at = models.DateTimeField(null=True, blank=True)
+    worker_seen_at = models.DateTimeField(null=True, blank=True)
+
+    class Meta:
+        ordering = ["name"]
+
+    def __str__(self) -> str:
+        return f"{self.name} ({self.slug})"
+
+    @property
+    def is_grbl(self) -> bool:
+        return self.firmware == self.Firmware.GRBL
+
+    def scripts(self) -> dict[str, str]:
+        """The printer's scripts by name, as the stream host takes them."""
+        return {
+            "connect": self.connect_script,
+            "start": self.start_script,
+            "end": self.end_script,
+            "pause": self.pause_script,
+            "resume": self.resume_script,
+            "abort": self.abort_script,
+        }
+
+
+class QueuedCommand(models.Model):
+    """A request written by any client for the printer's worker: the database queue.
+
+    Commands go to the script queue, emergencies out ahead of everything, actions
+    (pause, resume, abort, clear the bed, reconnect) to the stream controller.
+    """
+
+    class Kind(models.TextChoices):
+        COMMAND = "command", "command"
+        EMERGENCY = "emergency", "emergency"
+        ACTION = "action", "action"
+
+    class Action(models.TextChoices):
+        PAUSE = "pause", "pause"
+        RESUME = "resume", "resume"
+        ABORT = "abort", "abort"
+        BED_CLEAR = "bed_clear", "bed is clear"
+        RECONNECT = "reconnect", "reconnect"
+        DISCONNECT = "disconnect", "disconnect"
+
+    class State(models.TextChoices):
+        PENDING = "pending", "pending"
+        SENT = "sent", "sent"
+        DONE = "done", "done"
+        FAILED = "failed", "failed"
+
+    printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
+    kind = models.CharField(max_length=16, choices=Kind.choices, default=Kind.COMMAND)
+    text = models.TextField()
+    origin = models.CharField(max_length=100, blank=True, help_text="who asked")
+    state = models.CharField(
+        max_length=16, choices=State.choices, default=State.PENDING
+    )
+    reply = models.TextField(blank=True)
+    created_at = models.DateTimeField(auto_now_add=True)
+    done_at = models.DateTimeField(null=True, blank=True)
+
+    class Meta:
+        ordering = ["id"]
+        indexes = [
+            # Used by the worker's poll: the pending requests of one printer.
+            models.Index(
+                fields=["printer", "id"],
+                name="queuedcommand_pending",
+                condition=models.Q(state="pending"),
+            )
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.kind} {self.text!r} -> {self.printer_id}"
+
+
+class ResponseLine(models.Model):
+    """One line of Repetier's response log: ids increase per printer, `kind` is a filter bit."""
+
+    printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
+    seq = models.BigIntegerField()
+    time = models.DateTimeField()
+    text = models.TextField()
+    kind = models.PositiveSmallIntegerField(
+        help_text="1 command, 2 ack, 4 other response, 8 non-maskable"
+    )
+
+    class Meta:
+        ordering = ["printer", "seq"]
+        constraints = [
+            # Reading `?start=<id>` walks this index; pruning deletes below a seq.
+            models.UniqueConstraint(fields=["printer", "seq"], name="responseline_seq")
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.seq}: {self.text}"

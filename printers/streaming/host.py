@@ -1,0 +1,393 @@
+"""The stream host: ESP3D's three queues and the per-stream command states, sans-IO.
+
+It is the spooler's brain (MeerK40t): the worker owns the loop and the I/O, the host
+decides which line goes next. Each call to `advance(now)` does ESP3D's operations 2
+and 3: choose the active stream (emergency > script queue > stream queue) and move
+its command state until it has to wait. Step 1 (external requests) arrives through
+`request_pause/resume/abort` and `submit`; step 4 (the rx queue) through
+`handle_ack/handle_failed` called by the worker for the protocol's events.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from printers.protocol.errors import CommandRejected
+from printers.streaming.streams import (
+    CommandState,
+    Line,
+    QueueState,
+    Stream,
+    StreamType,
+    lines_from_text,
+)
+
+if TYPE_CHECKING:
+    from printers.protocol.link import LinkProtocol
+
+S = CommandState
+
+
+@dataclass(frozen=True, slots=True)
+class StreamStarted:
+    stream: Stream
+
+
+@dataclass(frozen=True, slots=True)
+class StreamPaused:
+    stream: Stream
+
+
+@dataclass(frozen=True, slots=True)
+class StreamResumed:
+    stream: Stream
+
+
+@dataclass(frozen=True, slots=True)
+class StreamEnded:
+    """A stream left its queue; `stream.outcome` is completed, aborted or failed."""
+
+    stream: Stream
+
+
+@dataclass(frozen=True, slots=True)
+class EspCommand:
+    """An `[ESPxxx]` line was read from a stream: the worker answers it to the origin."""
+
+    stream: Stream
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandAnswered:
+    """A script line got its ack (ok) or was refused (message)."""
+
+    stream: Stream
+    line: Line
+    ok: bool
+    message: str = ""
+
+
+HostEvent = (
+    StreamStarted
+    | StreamPaused
+    | StreamResumed
+    | StreamEnded
+    | EspCommand
+    | CommandAnswered
+)
+
+
+class StreamHost:
+    """Queues streams and feeds their lines to a LinkProtocol as its window allows."""
+
+    def __init__(
+        self,
+        protocol: LinkProtocol,
+        *,
+        scripts: dict[str, str] | None = None,
+        max_steps: int = 512,
+    ) -> None:
+        self.protocol = protocol
+        self.scripts = dict(scripts or {})
+        self.stream_queue: deque[Stream] = deque()
+        self.script_queue: deque[Stream] = deque()
+        self.emergency_queue: deque[str] = deque()
+        self._max_steps = max_steps
+        self._events: deque[HostEvent] = deque()
+        self._pending: dict[int, Line] = {}
+        self._requested: str = ""
+        self._abort_message = ""
+
+    # -- requests (operation 1) ------------------------------------------------
+
+    def submit(self, stream: Stream) -> None:
+        """Put *stream* in the queue its type belongs to."""
+        if stream.type.is_stream:
+            self.stream_queue.append(stream)
+        elif stream.type.is_script:
+            self.script_queue.append(stream)
+        else:
+            raise ValueError(f"stream type {stream.type.value} cannot be streamed")
+
+    def run_script(self, name: str, *, origin: str = "host") -> Stream | None:
+        """Queue the printer's script *name* (pause, resume, abort...) if it has one."""
+        lines = lines_from_text(self.scripts.get(name, ""))
+        if not lines:
+            return None
+        stream = Stream(
+            StreamType.MULTIPLE_COMMANDS, lines, name=f"{name} script", origin=origin
+        )
+        self.script_queue.append(stream)
+        return stream
+
+    def emergency(self, text: str) -> None:
+        """Queue an emergency command: it goes out on the next advance, ahead of all."""
+        self.emergency_queue.append(text)
+
+    def request_pause(self) -> str:
+        """Ask the active stream to pause; returns an error message or ""."""
+        stream = self.current_stream
+        if stream is None:
+            return "no stream is running"
+        if stream.state in (S.PAUSE, S.PAUSED):
+            return "the stream is already paused"
+        self._requested = "pause"
+        return ""
+
+    def request_resume(self) -> str:
+        stream = self.current_stream
+        if stream is None or stream.state is not S.PAUSED:
+            return "no stream is paused"
+        self._requested = "resume"
+        return ""
+
+    def request_abort(self, message: str = "aborted by request") -> str:
+        if self.current_stream is None:
+            return "no stream is running"
+        self._requested = "abort"
+        self._abort_message = message
+        return ""
+
+    # -- the protocol's answers (operation 4) ---------------------------------
+
+    def handle_ack(self, tag: object) -> None:
+        """The firmware acknowledged the line sent with *tag*."""
+        if not isinstance(tag, tuple):
+            return
+        stream, line = tag
+        stream.acked += 1
+        if line.end_offset > stream.bytes_acked:
+            stream.bytes_acked = line.end_offset
+        if stream.type.is_script:
+            self._events.append(CommandAnswered(stream, line, ok=True))
+
+    def handle_failed(self, tag: object, message: str) -> None:
+        """The firmware refused the line sent with *tag* (GRBL `error:N`)."""
+        if not isinstance(tag, tuple):
+            return
+        stream, line = tag
+        stream.acked += 1
+        text = f"line {line.index + 1} {line.text!r}: {message}"
+        if stream.type.is_script:
+            self._events.append(CommandAnswered(stream, line, ok=False, message=text))
+        if not stream.finished and stream.state is not S.ERROR:
+            self._fail(stream, text)
+
+    def handle_resend(self) -> None:
+        """A resend is being served: show it in the active stream's state."""
+        stream = self.active_stream
+        if stream is not None and stream.state is S.WAIT_FOR_ACK:
+            stream.move(S.RESEND_GCODE_COMMAND)
+
+    def fail_stream(self, message: str) -> bool:
+        """Stop the stream queue's head with *message*; False if there is none."""
+        stream = self.current_stream
+        if stream is None or stream.state in (S.END, S.ERROR):
+            return False
+        self._fail(stream, message)
+        return True
+
+    def fail_all(self, message: str, *, outcome: str = "failed") -> None:
+        """Every queued stream ends with *outcome* and *message* (reset, halt, lost link)."""
+        for queue in (self.script_queue, self.stream_queue):
+            while queue:
+                stream = queue.popleft()
+                if stream.state is S.ERROR:
+                    stream.outcome = "failed"
+                elif stream.state is not S.END:
+                    stream.outcome, stream.message = outcome, message
+                stream.state = S.END
+                self._events.append(StreamEnded(stream))
+        self._pending.clear()
+        self._requested = ""
+
+    # -- operations 2 and 3 --------------------------------------------------
+
+    def advance(self, now: float) -> None:
+        """Send emergencies, then step the active stream until it must wait."""
+        while self.emergency_queue:
+            self.protocol.send_emergency(self.emergency_queue.popleft(), now)
+        for _ in range(self._max_steps):
+            stream = self.active_stream
+            if stream is None or not self._step(stream, now):
+                return
+
+    def next_event(self) -> HostEvent | None:
+        return self._events.popleft() if self._events else None
+
+    @property
+    def active_stream(self) -> Stream | None:
+        """Emergency > script queue > stream queue: the stream whose lines go next."""
+        if self.script_queue:
+            return self.script_queue[0]
+        return self.stream_queue[0] if self.stream_queue else None
+
+    @property
+    def current_stream(self) -> Stream | None:
+        """The head of the stream queue ([ESP701] controls it)."""
+        return self.stream_queue[0] if self.stream_queue else None
+
+    @property
+    def queue_state(self) -> QueueState:
+        stream = self.current_stream
+        if stream is None:
+            return QueueState.IDLE
+        if stream.state in (S.PAUSE, S.PAUSED):
+            return QueueState.PAUSED
+        return QueueState.PROCESSING
+
+    @property
+    def printing(self) -> bool:
+        """A file stream is running (Marlin numbers its lines "only while printing")."""
+        return self.queue_state is QueueState.PROCESSING
+
+    # -- one step of the command state machine --------------------------------
+
+    def _step(self, stream: Stream, now: float) -> bool:
+        """Advance *stream* by one state; False when it has to wait."""
+        handler = getattr(self, "_on_" + stream.state.name.lower())
+        return handler(stream, now)
+
+    def _on_start(self, stream: Stream, now: float) -> bool:
+        stream.move(S.READY_TO_READ_CURSOR)
+        self._events.append(StreamStarted(stream))
+        return True
+
+    def _on_ready_to_read_cursor(self, stream: Stream, now: float) -> bool:
+        if self._take_request(stream):
+            return True
+        if stream.eof:
+            stream.move(S.END if stream.drained else S.WAIT_FOR_ACK)
+            if stream.finished:
+                self._finish(stream, "completed")
+            return stream.finished
+        if stream.id not in self._pending:
+            line = next(stream.generate(), None)
+            if line is None:
+                stream.eof = True
+                return True
+            self._pending[stream.id] = line
+        stream.move(S.READ_CURSOR)
+        return True
+
+    def _on_read_cursor(self, stream: Stream, now: float) -> bool:
+        line = self._pending[stream.id]
+        if line.text.startswith("[ESP"):
+            stream.move(S.SEND_ESP_COMMAND)
+        elif self.protocol.can_send(line.text):
+            stream.move(S.SEND_GCODE_COMMAND)
+        else:
+            stream.move(S.WAIT_FOR_ACK)
+            return False
+        return True
+
+    def _on_send_gcode_command(self, stream: Stream, now: float) -> bool:
+        line = self._pending.pop(stream.id)
+        try:
+            self.protocol.send(line.text, now, tag=(stream, line))
+        except CommandRejected as error:
+            self._fail(stream, f"line {line.index + 1}: {error}")
+            return True
+        stream.sent += 1
+        stream.move(S.READY_TO_READ_CURSOR)
+        return True
+
+    def _on_send_esp_command(self, stream: Stream, now: float) -> bool:
+        line = self._pending.pop(stream.id)
+        stream.sent += 1
+        stream.acked += 1
+        self._events.append(EspCommand(stream, line.text))
+        stream.move(S.READY_TO_READ_CURSOR)
+        return True
+
+    def _on_wait_for_ack(self, stream: Stream, now: float) -> bool:
+        if self._take_request(stream):
+            return True
+        if stream.eof and stream.drained:
+            stream.move(S.END)
+            self._finish(stream, "completed")
+            return True
+        line = self._pending.get(stream.id)
+        if stream.eof or (line is not None and not self._can_go(line)):
+            return False
+        stream.move(S.READY_TO_READ_CURSOR)
+        return True
+
+    def _on_resend_gcode_command(self, stream: Stream, now: float) -> bool:
+        stream.move(S.WAIT_FOR_ACK)
+        return True
+
+    def _on_pause(self, stream: Stream, now: float) -> bool:
+        self.run_script("pause")
+        stream.move(S.PAUSED)
+        self._events.append(StreamPaused(stream))
+        return True
+
+    def _on_paused(self, stream: Stream, now: float) -> bool:
+        return self._take_request(stream)
+
+    def _on_resume(self, stream: Stream, now: float) -> bool:
+        self.run_script("resume")
+        stream.move(S.READY_TO_READ_CURSOR)
+        self._events.append(StreamResumed(stream))
+        return True
+
+    def _on_abort(self, stream: Stream, now: float) -> bool:
+        self.run_script("abort")
+        stream.move(S.END)
+        self._finish(stream, "aborted", self._abort_message)
+        return True
+
+    def _on_error(self, stream: Stream, now: float) -> bool:
+        stream.move(S.END)
+        self._finish(stream, "failed", stream.message)
+        return True
+
+    # -- helpers ---------------------------------------------------------------
+
+    def _can_go(self, line: Line) -> bool:
+        return line.text.startswith("[ESP") or self.protocol.can_send(line.text)
+
+    def _take_request(self, stream: Stream) -> bool:
+        """Apply a pending pause/resume/abort to the stream queue's head."""
+        if not self._requested or stream is not self.current_stream:
+            return False
+        wanted, self._requested = self._requested, ""
+        moves = {
+            "pause": S.PAUSE,
+            "abort": S.ABORT,
+            "resume": S.RESUME,
+        }
+        target = moves[wanted]
+        if target not in _ALLOWED_FROM[stream.state]:
+            return False
+        stream.move(target)
+        return True
+
+    def _fail(self, stream: Stream, message: str) -> None:
+        stream.message = message
+        if stream.state in (S.START, S.READ_CURSOR, S.SEND_ESP_COMMAND):
+            stream.state = S.READY_TO_READ_CURSOR
+        stream.move(S.ERROR)
+
+    def _finish(self, stream: Stream, outcome: str, message: str = "") -> None:
+        stream.outcome = outcome
+        if message:
+            stream.message = message
+        self._pending.pop(stream.id, None)
+        for queue in (self.script_queue, self.stream_queue):
+            if queue and queue[0] is stream:
+                queue.popleft()
+                break
+        self._events.append(StreamEnded(stream))
+
+
+_ALLOWED_FROM: dict[CommandState, frozenset[CommandState]] = {
+    S.READY_TO_READ_CURSOR: frozenset({S.PAUSE, S.ABORT}),
+    S.WAIT_FOR_ACK: frozenset({S.PAUSE, S.ABORT}),
+    S.RESEND_GCODE_COMMAND: frozenset({S.PAUSE, S.ABORT}),
+    S.PAUSED: frozenset({S.RESUME, S.ABORT}),
+}

@@ -1,0 +1,191 @@
+"""How the worker reacts to protocol and stream-host events (a mixin of PrinterWorker)."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from jobs.models import Job
+from printers.protocol import events as ev
+from printers.protocol.events import LineKind
+from printers.streaming import Stream, StreamType, lines_from_text
+from printers.streaming import host as hv
+from printers.worker import spool
+
+if TYPE_CHECKING:
+    from printers.worker.loop import PrinterWorker
+
+logger = logging.getLogger("printhost.worker")
+
+#: Host commands a firmware may send with //action: and what they do here.
+_ACTIONS = {"pause": "pause", "paused": "pause", "resume": "resume", "cancel": "abort"}
+
+
+class Reactions:
+    """Event handlers: each protocol or host event becomes a DB write and/or a request."""
+
+    # -- protocol events ---------------------------------------------------------
+
+    def handle_protocol_events(self: PrinterWorker, now: float) -> None:
+        while (event := self.protocol.next_event()) is not None:
+            if isinstance(event, ev.Sent):
+                self.log.add(event.text, LineKind.COMMAND)
+            elif isinstance(event, ev.Received):
+                self.log.add(event.text, event.kind)
+            elif isinstance(event, ev.Ack):
+                self.host.handle_ack(event.tag)
+            else:
+                self._on_protocol_event(event, now)
+
+    def _on_protocol_event(self: PrinterWorker, event: ev.Event, now: float) -> None:
+        match event:
+            case ev.CommandFailed(tag=tag, message=message):
+                self.host.handle_failed(tag, message)
+            case ev.ResendServed():
+                self.host.handle_resend()
+            case ev.TemperatureReport(readings=readings):
+                temps = {
+                    k: {"current": c, "target": t} for k, (c, t) in readings.items()
+                }
+                self.status.update(temperatures=temps)
+            case ev.StatusReport(state=state, fields=fields):
+                self.status.update(machine_status={"state": state, **fields})
+            case ev.FirmwareInfo(name=name):
+                self.status.update(firmware_name=name)
+            case ev.Capability(name=name, enabled=enabled):
+                self._on_capability(name, enabled=enabled)
+            case ev.ActionCommand(action=action):
+                self._on_action(action)
+            case ev.FirmwareReset(banner=banner):
+                self._on_reset(banner, now)
+            case ev.FirmwareHalted(message=message):
+                self._stop_everything(f"the firmware halted: {message}")
+                self.halted = f"{message} (reset the printer, then reconnect)"
+            case ev.FirmwareError(message=message) | ev.Alarm(message=message):
+                if self.host.fail_stream(f"the firmware reported an error: {message}"):
+                    self.stop_motion_after_error()
+            case ev.LinkFailed(message=message):
+                self._stop_everything(message)
+                self._close()
+                self._retry_later(now, message)
+        self.update_state()
+
+    def _on_capability(self: PrinterWorker, name: str, *, enabled: bool) -> None:
+        caps = dict(self.status.fields.get("capabilities", {}))
+        caps[name] = enabled
+        self.status.update(capabilities=caps)
+        interval = self.printer.temperature_interval
+        if name == "AUTOREPORT_TEMP" and enabled and interval > 0:
+            self.autoreport = True
+            self.submit_internal(f"M155 S{max(1, round(interval))}")
+
+    def _on_action(self: PrinterWorker, action: str) -> None:
+        wanted = _ACTIONS.get(action.lower())
+        if wanted == "pause":
+            self.host.request_pause()
+        elif wanted == "resume":
+            self.host.request_resume()
+        elif wanted == "abort":
+            self.host.request_abort("cancelled by the printer (//action:cancel)")
+
+    def _on_reset(self: PrinterWorker, banner: str, now: float) -> None:
+        if self.host.current_stream is not None:
+            self._stop_everything(
+                f"the firmware reset ({banner!r}) mid-job: the printer lost its state, "
+                "so the job was stopped, not continued"
+            )
+        else:
+            self.host.fail_all(f"the firmware reset ({banner!r})")
+            self.protocol.abandon()
+            self.handle_host_events(now)
+        self.halted = ""
+        self.hello(now)
+
+    def _stop_everything(self: PrinterWorker, message: str) -> None:
+        self.host.fail_all(message)
+        self.protocol.abandon()
+        self.handle_host_events(self.clock())
+        self.note(message)
+
+    def stop_motion_after_error(self: PrinterWorker) -> None:
+        """GRBL executes what it buffered even after an error: hold the feed."""
+        if self.printer.is_grbl:
+            self.protocol.send_emergency("!", self.clock())
+
+    # -- stream host events -----------------------------------------------------
+
+    def handle_host_events(self: PrinterWorker, now: float) -> None:
+        while (event := self.host.next_event()) is not None:
+            match event:
+                case hv.StreamStarted(stream=stream) if _is_job(stream):
+                    self.note(f"job {stream.ref} ({stream.name}) started")
+                case hv.StreamPaused(stream=stream) if _is_job(stream):
+                    spool.save_progress(stream, state=Job.State.PAUSED)
+                    self.note(f"job {stream.ref} paused")
+                case hv.StreamResumed(stream=stream) if _is_job(stream):
+                    spool.save_progress(stream, state=Job.State.PRINTING)
+                    self.note(f"job {stream.ref} resumed")
+                case hv.StreamEnded(stream=stream):
+                    self._on_stream_end(stream)
+                case hv.EspCommand(stream=stream, text=text):
+                    self.requests.answer_esp(stream, text)
+                case hv.CommandAnswered(stream=stream, ok=ok, message=message):
+                    self.requests.answered(stream, ok=ok, message=message)
+        self.update_state()
+
+    def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
+        if not _is_job(stream):
+            self.requests.ended(stream)
+            return
+        state = spool.finish(stream)
+        self.waitstart = not self.printer.auto_start
+        text = f"job {stream.ref} ({stream.name}) {state.label}"
+        self.note(f"{text}: {stream.message}" if stream.message else text)
+        if state == Job.State.FAILED:
+            self.last_stream_error = stream.message
+            self.stop_motion_after_error()
+        if state == Job.State.COMPLETED:
+            self.host.run_script("end")
+
+    # -- jobs and periodic commands ---------------------------------------------
+
+    def maybe_claim_job(self: PrinterWorker, now: float) -> None:
+        """When idle, connected and the bed is clear, start the next queued job."""
+        if self.transport is None or self.halted or self.waitstart:
+            return
+        if self.host.current_stream is not None or self.host.script_queue:
+            return
+        job = spool.claim_next(self.printer.pk)
+        if job is None:
+            return
+        if not job.path.is_file():
+            spool.fail_job(job, f"the job's file {job.file} is missing")
+            self.note(f"job {job.pk} failed: its file is missing")
+            return
+        self.protocol.reset_line_numbers(now)
+        self.host.run_script("start")
+        self.host.submit(spool.stream_for(job))
+        self.update_state()
+
+    def save_progress(self: PrinterWorker) -> None:
+        stream = self.host.current_stream
+        if stream is not None and _is_job(stream):
+            spool.save_progress(stream)
+
+    def poll_temperature(self: PrinterWorker, now: float) -> None:
+        """Ask M105 when the firmware does not report temperatures by itself."""
+        interval = self.printer.temperature_interval
+        if self.printer.is_grbl or self.autoreport or interval <= 0 or self.halted:
+            return
+        if now < self.next_temperature or self.host.script_queue:
+            return
+        self.next_temperature = now + interval
+        self.submit_internal("M105")
+
+    def submit_internal(self: PrinterWorker, text: str) -> None:
+        lines = lines_from_text(text)
+        self.host.submit(Stream(StreamType.SINGLE_COMMAND, lines, name=text))
+
+
+def _is_job(stream: Stream) -> bool:
+    return stream.type.is_stream and isinstance(stream.ref, int)

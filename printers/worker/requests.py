@@ -1,0 +1,228 @@
+"""The worker's side of the database queue: requests in, replies back to their origin."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from django.utils import timezone
+
+from jobs.gcode import BadGcode, iter_commands
+from printers.models import QueuedCommand
+from printers.streaming import Line, Stream, StreamType, lines_from_text
+from printers.streaming.esp import (
+    EspError,
+    EspFileRequest,
+    EspStreamControl,
+    esp_reply,
+    parse_esp,
+)
+
+if TYPE_CHECKING:
+    from printers.worker.loop import PrinterWorker
+
+logger = logging.getLogger("printhost.worker")
+Kind = QueuedCommand.Kind
+RowState = QueuedCommand.State
+
+#: GRBL realtime bytes a client may type as a command.
+_GRBL_REALTIME = {"!", "~", "?", "\x18", "\x85", "\x84"}
+
+
+class RequestPoller:
+    """Reads pending QueuedCommand rows and turns them into stream-host requests."""
+
+    def __init__(self, worker: PrinterWorker) -> None:
+        self.worker = worker
+
+    def poll(self, now: float) -> int:
+        """Handle every pending request, emergencies first; returns how many."""
+        rows = list(
+            QueuedCommand.objects.filter(
+                printer_id=self.worker.printer.pk, state=RowState.PENDING
+            ).order_by("id")[:200]
+        )
+        rows.sort(key=lambda row: row.kind != Kind.EMERGENCY)
+        for row in rows:
+            self._handle(row, now)
+        return len(rows)
+
+    def _handle(self, row: QueuedCommand, now: float) -> None:
+        if row.kind == Kind.EMERGENCY:
+            self._emergency(row, now)
+        elif row.kind == Kind.ACTION:
+            self._finish(row, self._action(row.text, row.origin))
+        elif row.text.startswith("[ESP") and self.worker.transport is None:
+            self._finish(row, self.esp(row.text, row.origin))
+        elif self.worker.transport is None:
+            self._finish(row, "error: printer offline")
+        elif self.worker.printer.is_grbl and row.text in _GRBL_REALTIME:
+            self.worker.protocol.send_emergency(row.text, now)
+            self._finish(row, "ok")
+        else:
+            self._queue_command(row)
+
+    def _queue_command(self, row: QueuedCommand) -> None:
+        lines = lines_from_text(row.text)
+        if not lines:
+            self._finish(row, "error: nothing to send (only comments?)")
+            return
+        kind = (
+            StreamType.SINGLE_COMMAND
+            if len(lines) == 1
+            else StreamType.MULTIPLE_COMMANDS
+        )
+        stream = Stream(
+            kind, lines, name=row.text[:40], ref=("cmd", row.pk), origin=row.origin
+        )
+        self.worker.host.submit(stream)
+        QueuedCommand.objects.filter(pk=row.pk).update(state=RowState.SENT)
+
+    def _emergency(self, row: QueuedCommand, now: float) -> None:
+        """Out ahead of everything: written to the port before this returns."""
+        worker = self.worker
+        if worker.transport is None:
+            self._finish(row, "error: printer offline")
+            return
+        full_stop = row.text.split()[0].upper() == "M112"
+        texts = ["!", "\x18"] if worker.printer.is_grbl and full_stop else [row.text]
+        for text in texts:
+            worker.protocol.send_emergency(text, now)
+        worker.pump(now)
+        if full_stop:
+            who = f" by {row.origin}" if row.origin else ""
+            worker.host.fail_all(f"emergency stop{who}", outcome="aborted")
+            worker.protocol.abandon()
+            worker.handle_host_events(now)
+            worker.note(f"emergency stop{who}")
+        self._finish(row, "ok")
+
+    def _action(self, action: str, origin: str) -> str:
+        worker = self.worker
+        host = worker.host
+        who = f" by {origin}" if origin else ""
+        match action:
+            case QueuedCommand.Action.PAUSE:
+                error = host.request_pause()
+            case QueuedCommand.Action.RESUME:
+                error = host.request_resume()
+            case QueuedCommand.Action.ABORT:
+                error = host.request_abort(f"aborted{who}")
+            case QueuedCommand.Action.BED_CLEAR:
+                worker.waitstart, error = False, ""
+            case QueuedCommand.Action.RECONNECT:
+                worker.stay_offline, worker.next_connect = False, 0.0
+                worker.disconnect(f"reconnect asked{who}")
+                error = ""
+            case QueuedCommand.Action.DISCONNECT:
+                worker.stay_offline = True
+                worker.disconnect(f"disconnected{who}")
+                error = ""
+            case _:
+                error = f"unknown action {action!r}"
+        worker.update_state()
+        return f"error: {error}" if error else "ok"
+
+    # -- replies ------------------------------------------------------------------
+
+    def answered(self, stream: Stream, *, ok: bool, message: str) -> None:
+        """A single command got its ok, or was refused."""
+        if _row_id(stream) is not None and stream.type is StreamType.SINGLE_COMMAND:
+            self._finish_id(_row_id(stream), "ok" if ok else f"error: {message}")
+
+    def ended(self, stream: Stream) -> None:
+        """A script stream left the queue: close its request row."""
+        row_id = _row_id(stream)
+        if row_id is None:
+            if stream.outcome == "failed":
+                self.worker.note(f"{stream.name}: {stream.message}")
+            return
+        reply = "ok" if stream.outcome == "completed" else f"error: {stream.message}"
+        QueuedCommand.objects.filter(pk=row_id, state=RowState.SENT).update(
+            state=RowState.DONE if reply == "ok" else RowState.FAILED,
+            reply=reply,
+            done_at=timezone.now(),
+        )
+
+    def answer_esp(self, stream: Stream, text: str) -> None:
+        """An [ESPxxx] line was read from a stream: answer it to its origin."""
+        reply = self.esp(text, stream.origin)
+        row_id = _row_id(stream)
+        if row_id is not None:
+            QueuedCommand.objects.filter(pk=row_id).update(reply=reply)
+
+    def esp(self, text: str, origin: str) -> str:
+        """Run [ESP700]/[ESP701]; the reply also goes to the response log."""
+        try:
+            request = parse_esp(text)
+            if isinstance(request, EspFileRequest):
+                reply = self._esp_file(request, origin)
+            else:
+                reply = self._esp_control(request, origin)
+        except (EspError, BadGcode) as error:
+            reply = f"error: {error}"
+        self.worker.log.add(reply, 4)
+        return reply
+
+    def _esp_file(self, request: EspFileRequest, origin: str) -> str:
+        from jobs.services import queue_stored_file, storage_dir
+
+        printer = self.worker.printer
+        if request.type.is_stream:
+            job = queue_stored_file(printer, request.path, origin=origin)
+            return esp_reply(700, f"queued as job {job.pk}", as_json=request.as_json)
+        path = storage_dir(printer) / request.path
+        if not path.is_file():
+            raise EspError(
+                f"[ESP700] no file {request.path!r} in the printer's storage"
+            )
+        lines = (Line(c.index, c.text, c.end_offset) for c in iter_commands(path))
+        self.worker.host.submit(
+            Stream(request.type, lines, name=request.path, origin=origin)
+        )
+        return esp_reply(700, "ok", as_json=request.as_json)
+
+    def _esp_control(self, request: EspStreamControl, origin: str) -> str:
+        action = request.action
+        if action == "CLEAR_ERROR":
+            self.worker.last_stream_error = ""
+            return esp_reply(701, "ok", as_json=request.as_json)
+        if action:
+            reply = self._action(action.lower(), origin)
+            ok = reply == "ok"
+            return esp_reply(
+                701, reply.removeprefix("error: "), as_json=request.as_json, ok=ok
+            )
+        message, data = self._status()
+        return esp_reply(701, message, as_json=request.as_json, data=data)
+
+    def _status(self) -> tuple[str, dict[str, object]]:
+        host = self.worker.host
+        stream = host.current_stream
+        data: dict[str, object] = {"status": host.queue_state.value}
+        if stream is not None:
+            data.update(
+                type=stream.type.value, name=stream.name, processed=stream.acked
+            )
+        if self.worker.last_stream_error:
+            data["error"] = self.worker.last_stream_error
+        words = [f"{k}: {v}" for k, v in data.items()]
+        return ", ".join(words), data
+
+    def _finish(self, row: QueuedCommand, reply: str) -> None:
+        self._finish_id(row.pk, reply)
+
+    def _finish_id(self, row_id: int, reply: str) -> None:
+        failed = reply.startswith("error")
+        QueuedCommand.objects.filter(pk=row_id).update(
+            state=RowState.FAILED if failed else RowState.DONE,
+            reply=reply,
+            done_at=timezone.now(),
+        )
+
+
+def _row_id(stream: Stream) -> int | None:
+    ref = stream.ref
+    if isinstance(ref, tuple) and len(ref) == 2 and ref[0] == "cmd":
+        return int(ref[1])
+    return None

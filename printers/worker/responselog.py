@@ -1,0 +1,80 @@
+"""Repetier's response log, written in batches so logging never slows the stream."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from django.db import transaction
+from django.db.models import Max
+from django.utils import timezone
+
+from printers.models import ResponseLine
+
+if TYPE_CHECKING:
+    from datetime import datetime
+
+#: Flush at least this often (s) and whenever this many lines wait.
+FLUSH_SECONDS = 0.25
+FLUSH_LINES = 1000
+#: Trim rows past the printer's retention bound this often (s).
+PRUNE_SECONDS = 30.0
+
+
+class ResponseLog:
+    """Numbers lines per printer (ids only grow) and stores them in batches.
+
+    Only the printer's worker writes here (the lease makes it the only one), so the
+    next id is simply one past the highest stored.
+    """
+
+    def __init__(self, printer_id: int, *, limit: int) -> None:
+        self.printer_id = printer_id
+        self.limit = limit
+        last = ResponseLine.objects.filter(printer_id=printer_id).aggregate(
+            last=Max("seq")
+        )["last"]
+        self.last_id: int = last or 0
+        self._buffer: list[tuple[int, datetime, str, int]] = []
+        self._flush_at = 0.0
+        self._prune_at = 0.0
+
+    def add(self, text: str, kind: int) -> int:
+        """Log one line; returns its id."""
+        self.last_id += 1
+        self._buffer.append((self.last_id, timezone.now(), text, int(kind)))
+        return self.last_id
+
+    def due(self, now: float) -> float:
+        """When the next flush must happen (monotonic seconds)."""
+        return self._flush_at if self._buffer else now + FLUSH_SECONDS
+
+    def flush_if_due(self, now: float) -> None:
+        if len(self._buffer) >= FLUSH_LINES or (self._buffer and now >= self._flush_at):
+            self.flush()
+        if not self._buffer:
+            self._flush_at = now + FLUSH_SECONDS
+        if now >= self._prune_at:
+            self._prune_at = now + PRUNE_SECONDS
+            self.prune()
+
+    def flush(self) -> None:
+        """Write every buffered line in one transaction."""
+        if not self._buffer:
+            return
+        rows = [
+            ResponseLine(printer_id=self.printer_id, seq=seq, time=t, text=x, kind=k)
+            for seq, t, x, k in self._buffer
+        ]
+        self._buffer.clear()
+        with transaction.atomic():
+            ResponseLine.objects.bulk_create(rows, batch_size=500)
+
+    def prune(self) -> int:
+        """Delete lines older than the retention bound; returns how many went."""
+        floor = self.last_id - self.limit
+        if floor <= 0:
+            return 0
+        deleted, _ = ResponseLine.objects.filter(
+            printer_id=self.printer_id, seq__lte=floor
+        ).delete()
+        return deleted

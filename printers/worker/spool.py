@@ -1,0 +1,102 @@
+"""The stream queue's database side: claiming jobs, saving progress, recording outcomes."""
+
+from __future__ import annotations
+
+from django.db.models import F
+from django.utils import timezone
+
+from jobs.gcode import iter_commands
+from jobs.models import ACTIVE_STATES, Job
+from printers.streaming import Line, Stream, StreamType
+
+_OUTCOME_STATE = {
+    "completed": Job.State.COMPLETED,
+    "aborted": Job.State.ABORTED,
+    "failed": Job.State.FAILED,
+    "interrupted": Job.State.INTERRUPTED,
+}
+
+
+def recover_interrupted(printer_id: int) -> list[Job]:
+    """Mark jobs a dead worker left printing as INTERRUPTED, at their last saved line.
+
+    They are never restarted by themselves: a half-printed part is on the bed.
+    """
+    jobs = list(Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES))
+    for job in jobs:
+        job.message = (
+            f"interrupted: the worker stopped at line {job.lines_acked} of "
+            f"{job.line_count}; not restarted (clear the bed and requeue it)"
+        )
+        Job.objects.filter(pk=job.pk, state__in=ACTIVE_STATES).update(
+            state=Job.State.INTERRUPTED, message=job.message, finished_at=timezone.now()
+        )
+    return jobs
+
+
+def claim_next(printer_id: int) -> Job | None:
+    """Take the first queued job of the printer (healthchecks' conditional UPDATE)."""
+    for job in Job.objects.filter(printer_id=printer_id, state=Job.State.QUEUED)[:5]:
+        won = Job.objects.filter(pk=job.pk, state=Job.State.QUEUED).update(
+            state=Job.State.PRINTING, started_at=timezone.now(), message=""
+        )
+        if won == 1:
+            job.refresh_from_db()
+            return job
+    return None
+
+
+def stream_for(job: Job) -> Stream:
+    """The file stream that prints *job*: its commands read lazily from disk."""
+    commands = (Line(c.index, c.text, c.end_offset) for c in iter_commands(job.path))
+    return Stream(
+        StreamType.SD_FILE_STREAM,
+        commands,
+        name=job.name,
+        ref=job.pk,
+        origin=job.origin,
+    )
+
+
+def save_progress(stream: Stream, *, state: str | None = None) -> None:
+    """Write how far the stream got (called at most about once a second)."""
+    fields: dict[str, object] = {
+        "lines_sent": stream.sent,
+        "lines_acked": stream.acked,
+        "bytes_acked": stream.bytes_acked,
+    }
+    if state:
+        fields["state"] = state
+    Job.objects.filter(pk=stream.ref).update(**fields)
+
+
+def finish(stream: Stream) -> Job.State:
+    """Record the stream's outcome on its job; returns the job's final state."""
+    state = _OUTCOME_STATE.get(stream.outcome, Job.State.FAILED)
+    Job.objects.filter(pk=stream.ref).update(
+        state=state,
+        message=stream.message,
+        lines_sent=stream.sent,
+        lines_acked=stream.acked,
+        bytes_acked=stream.bytes_acked,
+        finished_at=timezone.now(),
+    )
+    return state
+
+
+def fail_job(job: Job, message: str) -> None:
+    """A claimed job that cannot even start (file gone): mark it failed."""
+    Job.objects.filter(pk=job.pk).update(
+        state=Job.State.FAILED, message=message, finished_at=timezone.now()
+    )
+
+
+def next_position(printer_id: int) -> int:
+    """Queue position after every job of the printer."""
+    last = (
+        Job.objects.filter(printer_id=printer_id)
+        .order_by(F("position").desc(nulls_last=True))
+        .values_list("position", flat=True)
+        .first()
+    )
+    return (last or 0) + 1

@@ -1,0 +1,53 @@
+"""The printer row's live fields (state, message, temperatures), written when they change."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from django.utils import timezone
+
+from printers.models import Printer
+
+#: Temperatures and machine status are saved at most this often (s).
+SAVE_SECONDS = 1.0
+
+
+class PrinterStatus:
+    """Collects what the worker learns and writes it to the printer row, throttled."""
+
+    def __init__(self, printer_id: int) -> None:
+        self.printer_id = printer_id
+        self.state = Printer.State.OFFLINE
+        self.message = ""
+        self.fields: dict[str, Any] = {}
+        self._dirty: set[str] = set()
+        self._saved_state: tuple[str, str] | None = None
+        self._save_at = 0.0
+
+    def set_state(self, state: str, message: str = "") -> bool:
+        """Change state (saved at the next save); True if it changed."""
+        if (state, message) == (self.state, self.message):
+            return False
+        self.state, self.message = Printer.State(state), message
+        return True
+
+    def update(self, **fields: Any) -> None:
+        """Remember live fields (temperatures, firmware_name...) for the next save."""
+        for name, value in fields.items():
+            if self.fields.get(name) != value:
+                self.fields[name] = value
+                self._dirty.add(name)
+
+    def save_if_due(self, now: float, *, force: bool = False) -> None:
+        """State changes are saved at once; the rest at most once a second."""
+        state_changed = (self.state, self.message) != self._saved_state
+        if not (state_changed or force or (self._dirty and now >= self._save_at)):
+            return
+        values = {name: self.fields[name] for name in self._dirty}
+        values.update(
+            state=self.state, state_message=self.message, worker_seen_at=timezone.now()
+        )
+        Printer.objects.filter(pk=self.printer_id).update(**values)
+        self._dirty.clear()
+        self._saved_state = (self.state, self.message)
+        self._save_at = now + SAVE_SECONDS

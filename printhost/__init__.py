@@ -1,0 +1,1 @@
+"""printhost: a print server for 3D printers, CNC routers and lasers."""

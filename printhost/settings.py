@@ -1,0 +1,125 @@
+"""Django settings for printhost, read from PRINTHOST_* / DATABASE_URL / REDIS_URL."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import dj_database_url
+
+from printhost.env import env_bool, env_float, env_list, env_str
+
+BASE_DIR = Path(__file__).resolve().parent.parent
+
+#: Where jobs, the SQLite database and simulator links live unless told otherwise.
+DATA_DIR = Path(env_str("PRINTHOST_DATA_DIR", str(BASE_DIR / "var"))).resolve()
+#: Uploaded job files, one folder per printer (`/sd/` and `/fs/` in [ESP700]).
+JOB_STORAGE_DIR = Path(env_str("PRINTHOST_JOB_DIR", str(DATA_DIR / "jobs"))).resolve()
+
+DEBUG = env_bool("PRINTHOST_DEBUG", default=False)
+SECRET_KEY = env_str(
+    "PRINTHOST_SECRET_KEY", "printhost-insecure-development-key-change-me"
+)
+ALLOWED_HOSTS = env_list("PRINTHOST_ALLOWED_HOSTS", ["127.0.0.1", "localhost", "[::1]"])
+
+INSTALLED_APPS = [
+    "daphne",
+    "django.contrib.admin",
+    "django.contrib.auth",
+    "django.contrib.contenttypes",
+    "django.contrib.sessions",
+    "django.contrib.messages",
+    "django.contrib.staticfiles",
+    "channels",
+    "printers",
+    "jobs",
+]
+
+MIDDLEWARE = [
+    "django.middleware.security.SecurityMiddleware",
+    "django.contrib.sessions.middleware.SessionMiddleware",
+    "django.middleware.common.CommonMiddleware",
+    "django.middleware.csrf.CsrfViewMiddleware",
+    "django.contrib.auth.middleware.AuthenticationMiddleware",
+    "django.contrib.messages.middleware.MessageMiddleware",
+    "django.middleware.clickjacking.XFrameOptionsMiddleware",
+]
+
+ROOT_URLCONF = "printhost.urls"
+WSGI_APPLICATION = None
+ASGI_APPLICATION = "printhost.asgi.application"
+
+TEMPLATES = [
+    {
+        "BACKEND": "django.template.backends.django.DjangoTemplates",
+        "DIRS": [BASE_DIR / "templates"],
+        "APP_DIRS": True,
+        "OPTIONS": {
+            "context_processors": [
+                "django.template.context_processors.request",
+                "django.contrib.auth.context_processors.auth",
+                "django.contrib.messages.context_processors.messages",
+            ],
+        },
+    },
+]
+
+# SQLite by default: WAL lets the web process read while a worker writes, and the
+# busy timeout makes a writer wait for the lock instead of failing at once.
+_SQLITE_URL = f"sqlite:///{DATA_DIR / 'printhost.sqlite3'}"
+DATABASES = {
+    "default": dj_database_url.parse(
+        env_str("DATABASE_URL", _SQLITE_URL), conn_max_age=0
+    )
+}
+if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
+    DATABASES["default"]["OPTIONS"] = {
+        "timeout": 20,
+        "transaction_mode": "IMMEDIATE",
+        "init_command": "PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL;",
+    }
+
+DEFAULT_AUTO_FIELD = "django.db.models.BigAutoField"
+
+REDIS_URL = env_str("REDIS_URL", "")
+if REDIS_URL:
+    CHANNEL_LAYERS = {
+        "default": {
+            "BACKEND": "channels_redis.core.RedisChannelLayer",
+            "CONFIG": {"hosts": [REDIS_URL]},
+        }
+    }
+else:
+    CHANNEL_LAYERS = {"default": {"BACKEND": "channels.layers.InMemoryChannelLayer"}}
+
+CELERY_BROKER_URL = REDIS_URL or "memory://"
+CELERY_TASK_ALWAYS_EAGER = not REDIS_URL
+
+AUTH_PASSWORD_VALIDATORS = [
+    {"NAME": "django.contrib.auth.password_validation.MinimumLengthValidator"},
+]
+
+LANGUAGE_CODE = "en-us"
+TIME_ZONE = env_str("PRINTHOST_TIME_ZONE", "UTC")
+USE_I18N = True
+USE_TZ = True
+
+STATIC_URL = "static/"
+STATICFILES_DIRS = [BASE_DIR / "static"]
+STATIC_ROOT = DATA_DIR / "static"
+
+#: Largest job file accepted, in bytes.
+PRINTHOST_MAX_JOB_BYTES = int(env_float("PRINTHOST_MAX_JOB_BYTES", 2 * 1024**3))
+#: Seconds a worker's claim on its printer lasts without renewal.
+PRINTHOST_LEASE_SECONDS = env_float("PRINTHOST_LEASE_SECONDS", 10.0)
+#: How often (s) a worker looks in the database for new requests.
+PRINTHOST_POLL_SECONDS = env_float("PRINTHOST_POLL_SECONDS", 0.1)
+
+LOGGING = {
+    "version": 1,
+    "disable_existing_loggers": False,
+    "formatters": {
+        "plain": {"format": "%(asctime)s %(levelname)s %(name)s: %(message)s"}
+    },
+    "handlers": {"console": {"class": "logging.StreamHandler", "formatter": "plain"}},
+    "root": {"handlers": ["console"], "level": env_str("PRINTHOST_LOG_LEVEL", "INFO")},
+}
