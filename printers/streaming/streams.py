@@ -6,7 +6,8 @@ LocalProtocolError, as h11's tables do):
     state                  next states
     ---------------------  ---------------------------------------------------
     START                  READY_TO_READ_CURSOR
-    READY_TO_READ_CURSOR   READ_CURSOR, PAUSE, ABORT, ERROR, END
+    READY_TO_READ_CURSOR   READ_CURSOR, WAIT_FOR_ACK (end of file), PAUSE, ABORT,
+                           ERROR, END
     READ_CURSOR            SEND_GCODE_COMMAND, SEND_ESP_COMMAND, WAIT_FOR_ACK
     SEND_GCODE_COMMAND     READY_TO_READ_CURSOR, WAIT_FOR_ACK, ERROR
     SEND_ESP_COMMAND       READY_TO_READ_CURSOR
@@ -101,7 +102,7 @@ _S = CommandState
 TRANSITIONS: dict[CommandState, frozenset[CommandState]] = {
     _S.START: frozenset({_S.READY_TO_READ_CURSOR}),
     _S.READY_TO_READ_CURSOR: frozenset(
-        {_S.READ_CURSOR, _S.PAUSE, _S.ABORT, _S.ERROR, _S.END}
+        {_S.READ_CURSOR, _S.WAIT_FOR_ACK, _S.PAUSE, _S.ABORT, _S.ERROR, _S.END}
     ),
     _S.READ_CURSOR: frozenset(
         {_S.SEND_GCODE_COMMAND, _S.SEND_ESP_COMMAND, _S.WAIT_FOR_ACK}

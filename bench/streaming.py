@@ -1,0 +1,138 @@
+"""`make bench`: stream generated files through the simulators over ptys and report.
+
+Cases: Marlin ping-pong, Marlin windowed (ADVANCED_OK, and the byte budget without
+it) and GRBL character counting; 115200 and 250000 baud with 0, 4 and 16 ms latency
+each way, and unthrottled; then 8 printers at once at 250000. Each case runs in its
+own process (bench/case.py), one after another, so they do not share the CPU.
+Writes bench-results.json and prints a table plus the checks of the targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+MODES = [
+    ("marlin", "ping_pong"),
+    ("marlin", "advanced_ok"),
+    ("marlin", "bytes"),
+    ("grbl", "char_counting"),
+]
+FILES = {"segments": 20000, "long": 2000}
+
+
+def cases(max_seconds: float) -> list[dict]:
+    """The case matrix; long lines only without added latency, to keep the run short."""
+    out = []
+    for file, lines in FILES.items():
+        for firmware, mode in MODES:
+            for baud in (115200, 250000):
+                latencies = (0, 4, 16) if file == "segments" else (0,)
+                for latency in latencies:
+                    out.append(
+                        _case(file, lines, firmware, mode, baud, latency, max_seconds)
+                    )
+            out.append(_case(file, lines, firmware, mode, 0, 0, max_seconds))
+    return out
+
+
+def _case(file: str, lines: int, firmware: str, mode: str, baud: int, latency: int,
+          max_seconds: float) -> dict:  # fmt: skip
+    speed = f"{baud}" if baud else "unthrottled"
+    return {
+        "name": f"{file}/{firmware}-{mode}/{speed}/{latency}ms",
+        "file": file, "lines": lines, "firmware": firmware, "mode": mode,
+        "baud": baud, "latency_ms": latency, "max_seconds": max_seconds,
+    }  # fmt: skip
+
+
+def run(case: dict) -> dict:
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.case", json.dumps(case)],
+        cwd=ROOT, capture_output=True, text=True, check=False, timeout=900,
+    )  # fmt: skip
+    if done.returncode != 0:
+        return {**case, "error": done.stderr.strip().splitlines()[-1:]}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def table(results: list[dict]) -> str:
+    head = f"{'case':44} {'lines':>6} {'s':>7} {'lines/s':>8} {'B/s':>8} {'use':>6} {'bound':>6} {'cpu/1k':>7}"
+    rows = [head, "-" * len(head)]
+    for r in results:
+        if "error" in r:
+            rows.append(f"{r['name']:44} ERROR {r['error']}")
+            continue
+        use = "-" if r["link_use"] is None else f"{r['link_use']:.3f}"
+        bnd = "-" if r["bound"] is None else f"{r['bound']:.3f}"
+        rows.append(
+            f"{r['name']:44} {r['lines']:>6} {r['seconds']:>7.2f} {r['lines_per_s']:>8.1f} "
+            f"{r['bytes_per_s']:>8.0f} {use:>6} {bnd:>6} {r['cpu_s_per_1k_lines']:>7.3f}"
+        )
+    return "\n".join(rows)
+
+
+def checks(results: list[dict]) -> list[str]:
+    """The targets: windowed/GRBL link use >= 0.9 (no latency) or >= 0.9 x bound."""
+    lines = []
+    for r in results:
+        if (
+            "error" in r
+            or not r.get("baud")
+            or r["mode"] == "ping_pong"
+            or r.get("group")
+        ):
+            continue
+        target = 0.9 if r["latency_ms"] == 0 else 0.9 * r["bound"]
+        ok = r["link_use"] >= target
+        lines.append(
+            f"{'PASS' if ok else 'FAIL'} {r['name']}: link use {r['link_use']:.3f} "
+            f">= {target:.3f}"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--max-seconds", type=float, default=20.0,
+                        help="stop each case after this long (rates stay exact)")  # fmt: skip
+    parser.add_argument("--only", default="", help="run cases whose name has this")
+    parser.add_argument("--out", default=str(ROOT / "bench-results.json"))
+    options = parser.parse_args(argv)
+    results = []
+    for case in cases(options.max_seconds):
+        if options.only and options.only not in case["name"]:
+            continue
+        result = run(case)
+        results.append(result)
+        print(table([result]).splitlines()[-1], flush=True)
+    if not options.only:
+        results += eight_at_once(options.max_seconds)
+    print("\n" + table(results))
+    verdicts = checks(results)
+    print("\n" + "\n".join(verdicts))
+    Path(options.out).write_text(json.dumps(results, indent=1))
+    return 1 if any(v.startswith("FAIL") for v in verdicts) else 0
+
+
+def eight_at_once(max_seconds: float) -> list[dict]:
+    """8 Marlin printers (ADVANCED_OK) at 250000 streaming at the same time."""
+    group = []
+    for i in range(8):
+        case = _case("segments", 20000, "marlin", "advanced_ok", 250000, 0, max_seconds)
+        case["name"] = f"8-at-once/printer{i}/250000/0ms"
+        group.append(case)
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        results = list(pool.map(run, group))
+    for r in results:
+        r["group"] = "8-at-once"
+    return results
+
+
+if __name__ == "__main__":
+    sys.exit(main())
