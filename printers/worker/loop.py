@@ -185,6 +185,10 @@ class PrinterWorker(Reactions):
         self.status.save_if_due(now)
 
     def _tick_offline(self, now: float) -> None:
+        if not self.stay_offline and now >= self.next_connect:
+            self.connect(now)
+            if self.transport is not None:
+                return
         if now >= self.next_poll:
             self.next_poll = now + self.poll_seconds
             close_old_connections()
@@ -192,10 +196,9 @@ class PrinterWorker(Reactions):
             self.requests.poll(now)
             self.status.save_if_due(now)
             self.log.flush_if_due(now)
-        if not self.stay_offline and now >= self.next_connect:
-            self.connect(now)
-            return
-        wake = min(self.next_poll, self.next_connect if not self.stay_offline else 1e18)
+        wake = self.next_poll
+        if not self.stay_offline:
+            wake = min(wake, self.next_connect)
         time.sleep(max(0.0, min(wake - now, self.poll_seconds)))
 
     def _wait_time(self, now: float) -> float:

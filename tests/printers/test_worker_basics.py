@@ -1,0 +1,105 @@
+"""The worker against a Marlin simulator on a pty: jobs, waitstart, requests, replies."""
+
+from __future__ import annotations
+
+import pytest
+
+from jobs.models import Job
+from jobs.services import request_action, send_command
+from printers.models import Printer, QueuedCommand, ResponseLine
+from printers.sample_gcode import commands_of, segments
+from printers.worker.loop import PrinterWorker
+from tests.conftest import wait_for
+
+pytestmark = pytest.mark.django_db
+
+HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
+
+
+def job_lines(sim) -> list[str]:
+    return [c for c in sim.executed() if not c.startswith(HOST_COMMANDS)]
+
+
+def state_of(job: Job) -> str:
+    return Job.objects.get(pk=job.pk).state
+
+
+@pytest.fixture
+def marlin(sim_factory, make_printer):
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000)
+    worker = PrinterWorker(printer)
+    worker.start()
+    yield sim, printer, worker
+    worker.stop()
+
+
+def test_job_prints_then_printer_waits_for_a_clear_bed(marlin, make_job):
+    sim, printer, worker = marlin
+    first = make_job(printer, segments(50))
+    second = make_job(printer, segments(20))
+
+    wait_for(lambda: state_of(first) == "completed", 30, "job 1", step=worker.tick)
+    for _ in range(20):
+        worker.tick()
+
+    assert job_lines(sim) == commands_of(segments(50))
+    assert state_of(second) == "queued"
+    assert Printer.objects.get(pk=printer.pk).state == Printer.State.WAITSTART
+    request_action(printer, "bed_clear", origin="test")
+    wait_for(lambda: state_of(second) == "completed", 30, "job 2", step=worker.tick)
+
+
+def test_command_reply_comes_back_to_its_row(marlin):
+    _, printer, worker = marlin
+    row = send_command(printer, "M114", origin="test")
+
+    wait_for(
+        lambda: QueuedCommand.objects.get(pk=row.pk).state == "done", 10, "M114 done",
+        step=worker.tick,
+    )  # fmt: skip
+
+    assert QueuedCommand.objects.get(pk=row.pk).reply == "ok"
+
+
+def test_response_log_has_increasing_ids_and_filter_bits(marlin):
+    _, printer, worker = marlin
+    send_command(printer, "M105", origin="test")
+    wait_for(
+        lambda: ResponseLine.objects.filter(printer=printer, kind=2).exists(), 10,
+        "an ack line", step=worker.tick,
+    )  # fmt: skip
+    worker.log.flush()
+
+    lines = list(ResponseLine.objects.filter(printer=printer).order_by("seq"))
+    seqs = [line.seq for line in lines]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+    assert any(line.kind == 1 and line.text.endswith("M105") for line in lines)
+    assert {line.kind for line in lines} <= {1, 2, 4, 8}
+
+
+def test_pause_and_resume_keep_every_line_once(marlin, make_job):
+    sim, printer, worker = marlin
+    text = segments(400)
+    job = make_job(printer, text)
+    wait_for(lambda: worker.host.printing, 10, "the job to start", step=worker.tick)
+
+    request_action(printer, "pause", origin="test")
+    wait_for(lambda: state_of(job) == "paused", 10, "pause", step=worker.tick)
+    request_action(printer, "resume", origin="test")
+    wait_for(lambda: state_of(job) == "completed", 30, "the job", step=worker.tick)
+
+    assert job_lines(sim) == commands_of(text)
+
+
+def test_abort_stops_the_job_and_says_who(marlin, make_job):
+    sim, printer, worker = marlin
+    job = make_job(printer, segments(5000))
+    wait_for(lambda: worker.host.printing, 10, "the job to start", step=worker.tick)
+
+    request_action(printer, "abort", origin="tester")
+    wait_for(lambda: state_of(job) == "aborted", 10, "abort", step=worker.tick)
+
+    job = Job.objects.get(pk=job.pk)
+    assert job.message == "aborted by tester"
+    assert job.lines_acked < 5003
