@@ -1,0 +1,168 @@
+"""Safety: emergency stop ahead of everything, resets and lost ports stop the job."""
+
+from __future__ import annotations
+
+import pytest
+
+from jobs.models import Job
+from jobs.services import emergency_stop
+from printers.models import Printer, ResponseLine
+from printers.sample_gcode import commands_of, segments
+from printers.worker.loop import PrinterWorker
+from tests.conftest import wait_for
+
+pytestmark = pytest.mark.django_db
+
+HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
+
+
+def job_lines(sim) -> list[str]:
+    """Job commands the firmware ran (a reset's torn line fragment is not a command)."""
+    return [
+        c
+        for c in sim.executed()
+        if c.startswith(("G", "M")) and not c.startswith(HOST_COMMANDS)
+    ]
+
+
+def job_state(job: Job) -> Job:
+    return Job.objects.get(pk=job.pk)
+
+
+def start_worker(printer: Printer) -> PrinterWorker:
+    worker = PrinterWorker(printer)
+    worker.start()
+    return worker
+
+
+def test_emergency_stop_overtakes_a_full_window(sim_factory, make_printer, make_job):
+    # Real-time moves keep the planner full, so the window stays full too.
+    sim = sim_factory("marlin", "--baud", "115200", "--time-scale", "1")
+    printer = make_printer(port=str(sim.link), baud=115200, flow="buffered")
+    text = segments(2000)
+    job = make_job(printer, text)
+    worker = start_worker(printer)
+    try:
+        wait_for(
+            lambda: worker.host.printing
+            and worker.protocol.in_flight >= 3
+            and not worker.protocol.can_send("G1 X100.000 Y100.000 E0.01000"),
+            30, "a full window", step=worker.tick,
+        )  # fmt: skip
+        in_flight, sent = worker.protocol.in_flight, worker.host.current_stream.sent
+        emergency_stop(printer, origin="tester")
+        wait_for(
+            lambda: job_state(job).state == "aborted", 10, "abort", step=worker.tick
+        )
+        wait_for(lambda: "M112" in sim.executed(), 5, "M112 in the record")
+        worker.log.flush()
+    finally:
+        worker.stop()
+
+    executed = sim.executed()
+    assert executed[-1] == "M112", "nothing may run after the emergency stop"
+    ran = job_lines(sim)
+    assert ran == commands_of(text)[: len(ran)]
+    assert len(ran) <= sent - 1, (
+        f"M112 overtook none of the {in_flight} lines in flight"
+    )
+    texts = list(
+        ResponseLine.objects.filter(printer=printer, kind=1)
+        .order_by("seq")
+        .values_list("text", flat=True)
+    )
+    after = texts[texts.index("M112") + 1 :]
+    assert not [t for t in after if " G1 " in t], f"job lines sent after M112: {after}"
+    assert job_state(job).message == "emergency stop by tester"
+
+
+def test_firmware_reset_mid_job_stops_the_job_with_a_reason(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000)
+    text = segments(20000)
+    job = make_job(printer, text)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: len(job_lines(sim)) > 300, 30, "300 lines", step=worker.tick)
+        assert sim.control("reset") == "ok"
+        wait_for(lambda: job_state(job).state == "failed", 10, "the job to stop",
+                 step=worker.tick)  # fmt: skip
+        for _ in range(50):
+            worker.tick()
+    finally:
+        worker.stop()
+
+    job = job_state(job)
+    assert "reset" in job.message and "not continued" in job.message
+    ran = job_lines(sim)
+    assert ran == commands_of(text)[: len(ran)], "no line repeated or skipped"
+    assert len(ran) < 20003
+
+
+def test_port_that_disappears_is_reported_and_the_worker_reconnects(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000)
+    job = make_job(printer, segments(20000))
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: len(job_lines(sim)) > 300, 30, "300 lines", step=worker.tick)
+        assert sim.control("close") == "ok"
+        wait_for(lambda: worker.transport is None, 10, "the loss", step=worker.tick)
+        worker.status.save_if_due(worker.clock(), force=True)
+        printer.refresh_from_db()
+        assert printer.state == Printer.State.OFFLINE
+        assert "port lost" in printer.state_message
+        assert sim.control("reopen") == "ok"
+        wait_for(
+            lambda: worker.transport is not None, 20, "a reconnect", step=worker.tick
+        )
+    finally:
+        worker.stop()
+
+    job = job_state(job)
+    assert job.state == Job.State.INTERRUPTED
+    assert "port went away" in job.message
+
+
+def test_unknown_port_is_reported_and_the_worker_keeps_running(make_printer):
+    printer = make_printer(port="/nonexistent/ttyUSB9")
+    worker = start_worker(printer)
+    try:
+        for _ in range(3):
+            worker.tick()
+        worker.status.save_if_due(worker.clock(), force=True)
+    finally:
+        worker.stop()
+
+    assert worker.transport is None
+    assert worker.next_connect > 0
+    texts = list(
+        ResponseLine.objects.filter(printer=printer).values_list("text", flat=True)
+    )
+    assert any("cannot open port" in t and "retrying in" in t for t in texts)
+
+
+def test_job_with_a_line_over_the_limit_fails_and_the_next_job_prints(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000, auto_start=True)
+    bad = make_job(printer, segments(10))
+    # The file changed on disk after it was checked: the protocol must refuse the line.
+    bad.path.write_text("G28\nG1 X" + "1" * 120 + "\nG1 X2\n")
+    good = make_job(printer, segments(10))
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: job_state(good).state == "completed", 20, "the good job",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+
+    bad = job_state(bad)
+    assert bad.state == Job.State.FAILED
+    assert bad.message.startswith("line 2:")
+    assert "G1 X1111" not in " ".join(sim.executed())
