@@ -1,0 +1,246 @@
+"""Classify one line from Marlin-dialect firmware (Marlin, Prusa, Repetier, RepRap)."""
+
+from __future__ import annotations
+
+import enum
+import re
+from dataclasses import dataclass
+
+from printers.protocol.events import (
+    ActionCommand,
+    Busy,
+    Capability,
+    Event,
+    FirmwareError,
+    FirmwareHalted,
+    FirmwareInfo,
+    FirmwareMessage,
+    FirmwareReset,
+    LineKind,
+    TemperatureReport,
+)
+
+__all__ = ["Reply", "ReplyKind", "parse_response", "parse_temperatures"]
+
+
+class ReplyKind(enum.Enum):
+    """What a firmware line means to the sender."""
+
+    #: `ok`, `ok N12 P15 B3` (ADVANCED_OK), Repetier `ok 12`, `ok T:...`.
+    OK = "ok"
+    #: `Resend: 12`, `Resend:N12`, `rs 12`: the firmware wants line 12 and after again.
+    RESEND = "resend"
+    #: Repetier `skip 12`: a line it threw away on purpose (after a resend, or seen).
+    SKIP = "skip"
+    #: `wait`: the firmware is idle and has heard nothing for NO_TIMEOUTS ms.
+    WAIT = "wait"
+    #: `echo:busy: processing` and friends: alive, the ok will be late.
+    BUSY = "busy"
+    #: Resend flow: a line arrived out of sequence (or was a leftover of a flush).
+    LINE_NUMBER_ERROR = "line_number_error"
+    #: Resend flow: a line arrived damaged (checksum, missing `*` or `N`, format).
+    CHECKSUM_ERROR = "checksum_error"
+    #: kill(), thermal faults, `!!`, `fatal:`: the firmware stopped itself.
+    HALT = "halt"
+    #: Any other `Error:` line.
+    ERROR = "error"
+    #: `start`: the firmware booted.
+    START = "start"
+    #: `//action:<name> <argument>`.
+    ACTION = "action"
+    #: A temperature report without ok (M155 autoreport, M109/M190 progress).
+    TEMPERATURE = "temperature"
+    #: M115's `FIRMWARE_NAME:... KEY:value ...` line.
+    FIRMWARE_INFO = "firmware_info"
+    #: M115's `Cap:NAME:0|1` lines.
+    CAPABILITY = "capability"
+    #: Any other `echo:` line.
+    ECHO = "echo"
+    #: Anything else.
+    OTHER = "other"
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """One classified firmware line."""
+
+    kind: ReplyKind
+    line_kind: LineKind
+    text: str
+    #: ok/Resend/skip: the line number; resend-flow errors: "Last Line".
+    number: int | None = None
+    #: ADVANCED_OK `P`: free planner slots.
+    planner_free: int | None = None
+    #: ADVANCED_OK `B`: free command-queue slots.
+    buffer_free: int | None = None
+    #: The event this line means for the worker (info lines, ok T:, errors), if any.
+    event: Event | None = None
+
+    @property
+    def advanced(self) -> bool:
+        """True for an ADVANCED_OK reply (`ok ... P<p> B<b>`)."""
+        return self.buffer_free is not None
+
+
+_ACK = LineKind.ACK
+_IMPORTANT = LineKind.IMPORTANT
+_RESPONSE = LineKind.RESPONSE
+
+_PLAIN_OK = Reply(ReplyKind.OK, _ACK, "ok")
+_WAIT = Reply(ReplyKind.WAIT, _ACK, "wait")
+
+_OK_NUMBER = re.compile(r"N?(-?\d+)$")
+_ADVANCED_OK = re.compile(r"(?:N(-?\d+)\s+)?P(\d+)\s+B(\d+)")
+_RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)", re.IGNORECASE)
+_SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)", re.IGNORECASE)
+_LAST_LINE = re.compile(r"(?:last line|expected line)\s*:?\s*(-?\d+)", re.IGNORECASE)
+_TEMPERATURE = re.compile(
+    r"(?:^|\s)(T\d*|B|C|P|L)\s*:\s*(-?\d+(?:\.\d*)?)(?:\s*/\s*(-?\d+(?:\.\d*)?))?"
+)
+_TEMPERATURE_START = re.compile(r"(?:T\d*|B|C)\s*:\s*-?\d")
+_INFO_KEY = re.compile(r"(?:^|\s)([A-Z][A-Z0-9_]{2,}):")
+_CAPABILITY = re.compile(r"Cap:([A-Za-z0-9_]+):\s*([01])$")
+
+_LINE_NUMBER_ERRORS = ("line number is not last line number+1", "expected line")
+_CHECKSUM_ERRORS = (
+    "checksum mismatch",
+    "no checksum with line number",
+    "no line number with checksum",
+    "format error",
+)
+_HALTS = (
+    "printer halted",
+    "kill() called",
+    "printer stopped due to errors",
+    "heating failed",
+    "thermal runaway",
+    "thermal malfunction",
+    "maxtemp triggered",
+    "mintemp triggered",
+    ", system stopped! heater_id:",
+    "kill caused",
+    "watchdog barked",
+)
+
+
+def parse_response(line: str) -> Reply:
+    """Classify one firmware line (without its newline) into a Reply."""
+    if line == "ok":
+        return _PLAIN_OK
+    text = line.strip()
+    if text == "ok":
+        return _PLAIN_OK
+    if text.startswith("ok "):
+        return _parse_ok(text)
+    lower = text.lower()
+    if lower.startswith(("resend", "rs ", "rs:")):
+        return _parse_numbered(text, _RESEND, ReplyKind.RESEND)
+    if lower.startswith("skip"):
+        return _parse_numbered(text, _SKIP, ReplyKind.SKIP)
+    if text == "wait":
+        return _WAIT
+    if lower.startswith(("echo:busy:", "busy:")):
+        message = text[lower.index("busy:") + 5 :].strip()
+        return Reply(ReplyKind.BUSY, _RESPONSE, text, event=Busy(message))
+    if lower.startswith("error:"):
+        return _parse_error(text, text[6:].strip())
+    if text.startswith("!!") or lower.startswith("fatal:"):
+        message = text[2:] if text.startswith("!!") else text[6:]
+        return _halt(text, message.strip() or text)
+    return _parse_information(text)
+
+
+def _parse_information(text: str) -> Reply:
+    if text == "start":
+        return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset(text))
+    if text.startswith("//action:"):
+        action, _, argument = text[9:].strip().partition(" ")
+        event = ActionCommand(action, argument.strip())
+        return Reply(ReplyKind.ACTION, _IMPORTANT, text, event=event)
+    if text.startswith("FIRMWARE_NAME:"):
+        return Reply(
+            ReplyKind.FIRMWARE_INFO, _RESPONSE, text, event=_firmware_info(text)
+        )
+    if text.startswith("Cap:") and (match := _CAPABILITY.match(text)):
+        event = Capability(match[1], match[2] == "1")
+        return Reply(ReplyKind.CAPABILITY, _RESPONSE, text, event=event)
+    if text.startswith("echo:"):
+        event = FirmwareMessage(text[5:].strip())
+        return Reply(ReplyKind.ECHO, _RESPONSE, text, event=event)
+    if _TEMPERATURE_START.match(text) and (readings := parse_temperatures(text)):
+        event = TemperatureReport(readings)
+        return Reply(ReplyKind.TEMPERATURE, _ACK, text, event=event)
+    return Reply(ReplyKind.OTHER, _RESPONSE, text, event=FirmwareMessage(text))
+
+
+def _parse_ok(text: str) -> Reply:
+    rest = text[3:].strip()
+    if match := _ADVANCED_OK.match(rest):
+        number = int(match[1]) if match[1] is not None else None
+        return Reply(
+            ReplyKind.OK,
+            _ACK,
+            text,
+            number=number,
+            planner_free=int(match[2]),
+            buffer_free=int(match[3]),
+        )
+    if match := _OK_NUMBER.match(rest):
+        return Reply(ReplyKind.OK, _ACK, text, number=int(match[1]))
+    readings = parse_temperatures(rest) if ":" in rest else {}
+    event = TemperatureReport(readings) if readings else None
+    return Reply(ReplyKind.OK, _ACK, text, event=event)
+
+
+def _parse_numbered(text: str, pattern: re.Pattern[str], kind: ReplyKind) -> Reply:
+    match = pattern.match(text)
+    if match is None:
+        return Reply(ReplyKind.OTHER, _RESPONSE, text, event=FirmwareMessage(text))
+    return Reply(kind, _IMPORTANT, text, number=int(match[1]))
+
+
+def _parse_error(text: str, message: str) -> Reply:
+    lower = message.lower()
+    if any(marker in lower for marker in _HALTS):
+        return _halt(text, message)
+    resend_kind = None
+    if any(marker in lower for marker in _LINE_NUMBER_ERRORS):
+        resend_kind = ReplyKind.LINE_NUMBER_ERROR
+    elif any(marker in lower for marker in _CHECKSUM_ERRORS):
+        resend_kind = ReplyKind.CHECKSUM_ERROR
+    if resend_kind is not None:
+        match = _LAST_LINE.search(message)
+        number = int(match[1]) if match else None
+        return Reply(resend_kind, _IMPORTANT, text, number=number)
+    event = FirmwareError(message or text)
+    return Reply(ReplyKind.ERROR, _IMPORTANT, text, event=event)
+
+
+def _halt(text: str, message: str) -> Reply:
+    return Reply(ReplyKind.HALT, _IMPORTANT, text, event=FirmwareHalted(message))
+
+
+def parse_temperatures(text: str) -> dict[str, tuple[float, float | None]]:
+    """Readings of a report like `T:210.0 /210.0 B:60.0 /60.0 T0:... @:127 B@:0`.
+
+    Keys are sensors ("T0", "T1", "B", "C", "P", "L"); power (`@:`, `B@:`) and
+    M109's `W:` are ignored. A bare "T" becomes "T0" unless T0 is reported too
+    (then T is the active tool's copy and is dropped).
+    """
+    readings: dict[str, tuple[float, float | None]] = {}
+    for key, current, target in _TEMPERATURE.findall(text):
+        readings[key] = (float(current), float(target) if target else None)
+    if "T" in readings:
+        active = readings.pop("T")
+        readings.setdefault("T0", active)
+    return readings
+
+
+def _firmware_info(text: str) -> FirmwareInfo:
+    keys = list(_INFO_KEY.finditer(text))
+    fields: dict[str, str] = {}
+    for index, match in enumerate(keys):
+        end = keys[index + 1].start() if index + 1 < len(keys) else len(text)
+        fields[match[1]] = text[match.end() : end].strip()
+    name = fields.pop("FIRMWARE_NAME", "")
+    return FirmwareInfo(name, fields)
