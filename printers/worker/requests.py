@@ -149,7 +149,7 @@ class RequestPoller:
         reply = self.esp(text, stream.origin)
         row_id = _row_id(stream)
         if row_id is not None:
-            QueuedCommand.objects.filter(pk=row_id).update(reply=reply)
+            self._finish_id(row_id, reply)
 
     def esp(self, text: str, origin: str) -> str:
         """Run [ESP700]/[ESP701]; the reply also goes to the response log."""

@@ -95,16 +95,16 @@ def test_sigkilled_worker_is_restarted_and_its_job_left_interrupted(host: Host):
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:
-        acked = lambda: host.query("SELECT lines_acked FROM jobs_job")[0][0]  # noqa: E731
+        acked = lambda: host.query("SELECT lines_acked FROM jobs_job")[0][0]
         wait_for(lambda: acked() > 1000, 60, "the job to be well under way")
         owner = host.query("SELECT lease_owner FROM printers_printer")[0][0]
         os.kill(int(owner.split(":")[1]), signal.SIGKILL)
 
         state = lambda: host.query("SELECT state, lines_acked, message FROM jobs_job")[
             0
-        ]  # noqa: E731
+        ]
         wait_for(lambda: state()[0] == "interrupted", 60, "the job to be interrupted")
-        new_owner = lambda: host.query("SELECT lease_owner FROM printers_printer")[0][0]  # noqa: E731
+        new_owner = lambda: host.query("SELECT lease_owner FROM printers_printer")[0][0]
         wait_for(lambda: new_owner() not in ("", owner), 60, "a new worker")
         wait_for(
             lambda: host.query("SELECT state FROM printers_printer")[0][0] == "waitstart",

@@ -1,0 +1,135 @@
+"""[ESP700] and [ESP701] from any client, through the worker, answered to their origin."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from jobs.models import Job
+from jobs.services import send_command, storage_dir
+from printers.models import QueuedCommand
+from printers.sample_gcode import commands_of, segments
+from printers.streaming.esp import EspError, EspFileRequest, EspStreamControl, parse_esp
+from printers.streaming.streams import StreamType
+from printers.worker.loop import PrinterWorker
+from tests.conftest import wait_for
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            "[ESP700]stream=/sd/a.gco",
+            EspFileRequest(StreamType.SD_FILE_STREAM, "a.gco", False),
+        ),
+        (
+            "[ESP700]stream=/fs/a.gco",
+            EspFileRequest(StreamType.FS_FILE_STREAM, "a.gco", False),
+        ),
+        (
+            "[ESP700]/sd/m.gco",
+            EspFileRequest(StreamType.SD_FILE_SCRIPT, "m.gco", False),
+        ),
+        (
+            "[ESP700]/fs/m.gco json=yes",
+            EspFileRequest(StreamType.FS_FILE_SCRIPT, "m.gco", True),
+        ),
+        ("[ESP701]action=PAUSE", EspStreamControl("PAUSE", False)),
+        ("[ESP701]action=abort json=yes", EspStreamControl("ABORT", True)),
+        ("[ESP701]", EspStreamControl("", False)),
+    ],
+)
+def test_parse_esp_reads_the_seed_forms(text, expected):
+    assert parse_esp(text) == expected
+
+
+@pytest.mark.parametrize(
+    ("text", "error"),
+    [
+        ("[ESP700]stream=/usb/a.gco", "must start with /sd/ or /fs/"),
+        ("[ESP700]stream=/sd/../x", "not a file name"),
+        ("[ESP700]", "needs a file"),
+        ("[ESP701]action=EXPLODE", "unknown action"),
+        ("[ESP800]", "not supported"),
+    ],
+)
+def test_parse_esp_refuses_bad_commands_with_a_reason(text, error):
+    with pytest.raises(EspError, match=error):
+        parse_esp(text)
+
+
+pytestmark_db = pytest.mark.django_db
+
+
+def reply_of(row: QueuedCommand, worker: PrinterWorker) -> str:
+    wait_for(
+        lambda: QueuedCommand.objects.get(pk=row.pk).state in ("done", "failed"),
+        10, f"an answer to {row.text}", step=worker.tick,
+    )  # fmt: skip
+    return QueuedCommand.objects.get(pk=row.pk).reply
+
+
+@pytest.fixture
+def worker(sim_factory, make_printer):
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000, auto_start=True)
+    worker = PrinterWorker(printer)
+    worker.start()
+    worker.sim = sim
+    yield worker
+    worker.stop()
+
+
+@pytestmark_db
+def test_esp700_stream_queues_a_stored_file_as_a_job(worker):
+    printer = worker.printer
+    (storage_dir(printer) / "part.gcode").write_text(segments(30))
+
+    reply = reply_of(send_command(printer, "[ESP700]stream=/sd/part.gcode"), worker)
+
+    assert reply.startswith("queued as job ")
+    job = Job.objects.get(pk=int(reply.rsplit(" ", 1)[1]))
+    wait_for(lambda: Job.objects.get(pk=job.pk).state == "completed", 20, "the job",
+             step=worker.tick)  # fmt: skip
+
+
+@pytestmark_db
+def test_esp700_script_runs_a_stored_file_through_the_script_queue(worker):
+    printer = worker.printer
+    (storage_dir(printer) / "macro.gcode").write_text("G28\nM117 macro done\n")
+
+    assert reply_of(send_command(printer, "[ESP700]/fs/macro.gcode"), worker) == "ok"
+    wait_for(lambda: "M117 macro done" in worker.sim.executed(), 10, "the macro",
+             step=worker.tick)  # fmt: skip
+
+
+@pytestmark_db
+def test_esp701_controls_and_reports_the_running_stream(worker, make_job):
+    printer = worker.printer
+    text = segments(3000)
+    job = make_job(printer, text)
+    wait_for(lambda: worker.host.printing, 10, "the job", step=worker.tick)
+
+    assert reply_of(send_command(printer, "[ESP701]action=PAUSE"), worker) == "ok"
+    wait_for(lambda: Job.objects.get(pk=job.pk).state == "paused", 10, "pause",
+             step=worker.tick)  # fmt: skip
+    status = json.loads(reply_of(send_command(printer, "[ESP701]json=yes"), worker))
+    assert status["cmd"] == "701"
+    assert status["data"]["status"] == "paused"
+    assert status["data"]["processed"] > 0
+    assert reply_of(send_command(printer, "[ESP701]action=RESUME"), worker) == "ok"
+    wait_for(lambda: Job.objects.get(pk=job.pk).state == "completed", 30, "the job",
+             step=worker.tick)  # fmt: skip
+    expected = [c for c in commands_of(text) if c.startswith("G1 X")]
+    ran = lambda: [c for c in worker.sim.executed() if c.startswith("G1 X")]
+    wait_for(lambda: len(ran()) >= len(expected), 5, "the record")
+    assert ran() == expected
+
+
+@pytestmark_db
+def test_esp701_with_nothing_running_says_idle_and_pause_is_refused(worker):
+    printer = worker.printer
+    assert reply_of(send_command(printer, "[ESP701]"), worker) == "status: idle"
+    reply = reply_of(send_command(printer, "[ESP701]action=PAUSE"), worker)
+    assert reply == "error: no stream is running"
