@@ -22,7 +22,7 @@ test: install
 	$(BIN)/python -m pytest
 
 test-fast: install
-	$(BIN)/python -m pytest -p no:django tests/protocol
+	$(BIN)/python -m pytest tests/protocol tests/streaming
 
 check: lint test
 

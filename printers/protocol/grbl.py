@@ -1,0 +1,387 @@
+"""GRBL 1.1 as a sans-IO link: character counting, realtime bytes, status polls."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from printers.protocol.errors import CommandRejected, LocalProtocolError
+from printers.protocol.events import (
+    Ack,
+    CommandFailed,
+    FirmwareReset,
+    LinkFailed,
+    Received,
+    Sent,
+    StatusReport,
+)
+from printers.protocol.grbl_codes import (
+    REALTIME_COMMANDS,
+    dwell_seconds,
+    is_eeprom_write,
+)
+from printers.protocol.grbl_responses import Answer, parse_response
+
+if TYPE_CHECKING:
+    from printers.protocol.events import Event
+
+__all__ = ["GrblProtocol"]
+
+# Rules of the GRBL link; everything that changes its state lives in this file.
+#
+#  on                    | when                                | then
+#  ----------------------+-------------------------------------+------------------------
+#  send(line)            | counted bytes + len+1 <= rx_buffer  | queued, bytes counted
+#  send(EEPROM write)    | nothing in flight                   | goes alone (ping-pong)
+#  send(anything)        | an EEPROM write in flight           | refused until answered
+#  send(anything)        | `\x18` sent, no banner yet          | refused: GRBL restarts
+#  send(bad line)        | always                              | CommandRejected
+#  ok                    | a line in flight                    | Ack(oldest tag)
+#  error:N               | a line in flight                    | CommandFailed(oldest)
+#  ok / error:N          | nothing in flight                   | Received only (stale)
+#  <State|...>           | always                              | StatusReport; progress
+#                        |                                     | if State is working
+#  Grbl <ver> banner     | always                              | FirmwareReset, abandon
+#  ALARM:N, [...], other | always                              | its event, no answer
+#  send_emergency(byte)  | byte is a realtime command          | goes first, uncounted
+#  send_emergency(\x18)  | always                              | unwritten lines drop,
+#                        |                                     | nothing until banner
+#  data_to_send()        | poll due, no `?` pending for < 1 s  | `?` first, uncounted
+#  handle_timeout()      | in flight, progress + ack_timeout   | LinkFailed, once per
+#                        | (+ oldest line's G4 dwell) passed   | stall
+#  handle_timeout()      | `\x18` sent, ack_timeout passed     | LinkFailed, unblocked
+#
+# Every received line yields Received(text, kind) before its meaning. GRBL executes
+# lines in order and answers each exactly once, so an answer is the oldest line's.
+# Its 128-byte RX ring drops what overflows, hence the counting; an EEPROM write
+# turns its RX interrupt off, hence the ping-pong.
+
+#: States in which GRBL may hold back `ok` for a long time: the planner is full.
+_WORKING_STATES = frozenset({"Run", "Jog", "Home", "Hold", "Door", "Check"})
+#: GRBL ignores a `?` sent before the previous report went out; ask again after this.
+_POLL_RETRY = 1.0
+#: A "line" this long without a newline is noise; hand it over rather than grow forever.
+_MAX_LINE_BYTES = 1024
+_SOFT_RESET = "\x18"
+
+
+@dataclass(frozen=True, slots=True)
+class _Line:
+    """A command line on its way to GRBL or waiting for its answer."""
+
+    #: As written to the wire, without the newline.
+    text: str
+    tag: object
+    #: An EEPROM write: it must be alone in GRBL's buffer (send-response).
+    sync: bool
+    #: Seconds of G4 dwell: GRBL sits Idle that long before answering.
+    dwell: float
+
+    @property
+    def size(self) -> int:
+        return len(self.text) + 1
+
+
+class GrblProtocol:
+    """The GRBL side of LinkProtocol: bytes and `now` in, bytes and events out.
+
+    *rx_buffer*: bytes of unanswered lines GRBL can hold (its ring keeps 128).
+    *max_line_length*: GRBL's line buffer less the newline. *ack_timeout*: seconds
+    without an answer or motion before LinkFailed. *status_interval*: seconds
+    between `?` polls, None for none. *compact*: strip spaces from G-code lines.
+    """
+
+    def __init__(
+        self,
+        *,
+        rx_buffer: int = 127,
+        max_line_length: int = 79,
+        ack_timeout: float = 10.0,
+        status_interval: float | None = 0.2,
+        compact: bool = True,
+    ) -> None:
+        _check_settings(rx_buffer, max_line_length, ack_timeout, status_interval)
+        self.rx_buffer = rx_buffer
+        self.max_line_length = max_line_length
+        self.ack_timeout = ack_timeout
+        self.status_interval = status_interval
+        self.compact = compact
+        #: Part of the LinkProtocol contract; GRBL streams the same either way.
+        self.printing = False
+        #: Command lines written so far (not counting realtime bytes or polls).
+        self.lines_sent = 0
+        #: The latest status report, or None before the first.
+        self.last_status: StatusReport | None = None
+        self._events: deque[Event] = deque()
+        self._inbox = bytearray()
+        self._outbox: deque[_Line] = deque()  # accepted by send(), not yet written
+        self._waiting: deque[_Line] = deque()  # written, not yet answered
+        self._realtime: list[tuple[bytes, str]] = []
+        self._now: float | None = None
+        self._progress_at = 0.0
+        self._stall_reported = False
+        self._reset_sent_at: float | None = None
+        self._last_poll_at: float | None = None
+        self._poll_pending_since: float | None = None
+
+    # -- sending -------------------------------------------------------------------
+
+    def can_send(self, text: str) -> bool:
+        """True when *text* fits GRBL's RX buffer now and no sync rule holds it back.
+
+        A line send() would reject gives True, so that send() raises and says why
+        instead of the stream waiting forever.
+        """
+        try:
+            line = self._prepare(text, None)
+        except CommandRejected:
+            return True
+        return self._blocker(line) is None
+
+    def send(self, text: str, now: float, *, tag: object = None) -> None:
+        """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
+        self._now = now
+        line = self._prepare(text, tag)
+        blocker = self._blocker(line)
+        if blocker is not None:
+            raise LocalProtocolError(f"cannot send '{line.text}' now: {blocker}")
+        if not self.in_flight:
+            self._progress_at = now
+            self._stall_reported = False
+        self._outbox.append(line)
+
+    def send_emergency(self, text: str, now: float) -> None:
+        """Queue a realtime byte ahead of everything not yet written; never counted."""
+        self._now = now
+        name = REALTIME_COMMANDS.get(text)
+        if name is None:
+            raise LocalProtocolError(
+                f"{text!r} is not a GRBL realtime command; send() takes command lines"
+            )
+        if text == "?":
+            self._poll_pending_since = now
+        elif text == _SOFT_RESET:
+            # Lines written after the reset byte race GRBL's buffer flush: drop them,
+            # and send nothing until the banner says GRBL is listening again.
+            self._outbox.clear()
+            self._reset_sent_at = now
+        shown = text if text.isprintable() and text.isascii() else f"0x{ord(text):02x}"
+        self._realtime.append((text.encode("latin-1"), f"<{shown} {name}>"))
+
+    def reset_line_numbers(self, now: float) -> None:
+        """GRBL has no line numbers: nothing to do."""
+        self._now = now
+
+    def data_to_send(self) -> bytes:
+        """Realtime bytes, then a due `?` poll, then the queued lines, in one write."""
+        out = bytearray()
+        for raw, shown in self._realtime:
+            out += raw
+            self._events.append(Sent(shown))
+        self._realtime.clear()
+        if self._poll_due():
+            out += b"?"
+            self._last_poll_at = self._poll_pending_since = self._now
+        while self._outbox:
+            line = self._outbox.popleft()
+            out += line.text.encode("ascii") + b"\n"
+            self._events.append(Sent(line.text))
+            self._waiting.append(line)
+            self.lines_sent += 1
+        return bytes(out)
+
+    def abandon(self) -> None:
+        """Forget every line queued or in flight; realtime bytes still go out."""
+        self._outbox.clear()
+        self._waiting.clear()
+        self._stall_reported = False
+
+    @property
+    def in_flight(self) -> int:
+        """Lines accepted by send() and not yet answered."""
+        return len(self._outbox) + len(self._waiting)
+
+    # -- receiving -----------------------------------------------------------------
+
+    def receive_data(self, data: bytes, now: float) -> None:
+        """Feed bytes from GRBL; b"" means nothing arrived. Partial lines wait."""
+        self._now = now
+        self._inbox += data
+        while (end := self._inbox.find(b"\n")) >= 0:
+            raw = bytes(self._inbox[:end])
+            del self._inbox[: end + 1]
+            self._read_line(raw, now)
+        if len(self._inbox) > _MAX_LINE_BYTES:
+            raw = bytes(self._inbox)
+            self._inbox.clear()
+            self._read_line(raw, now)
+
+    def next_event(self) -> Event | None:
+        """The next event, or None when more data is needed."""
+        return self._events.popleft() if self._events else None
+
+    # -- time ----------------------------------------------------------------------
+
+    def next_deadline(self) -> float | None:
+        """The earliest of: the ack deadline, the reset deadline, the next poll."""
+        deadlines = [self._next_poll_at()]
+        if self._reset_sent_at is not None:
+            deadlines.append(self._reset_sent_at + self.ack_timeout)
+        elif self.in_flight and not self._stall_reported:
+            deadlines.append(self._ack_deadline())
+        return min((d for d in deadlines if d is not None), default=None)
+
+    def handle_timeout(self, now: float) -> None:
+        """Report a stalled stream or a reset with no banner (polls: data_to_send)."""
+        self._now = now
+        if self._reset_sent_at is not None:
+            if now >= self._reset_sent_at + self.ack_timeout:
+                self._reset_sent_at = None
+                self._stall_reported = True  # one failure is enough to report
+                self._events.append(
+                    LinkFailed(
+                        f"GRBL did not restart within {self.ack_timeout:g} s of a "
+                        "soft reset (no welcome banner)"
+                    )
+                )
+            return
+        if self.in_flight and not self._stall_reported and now >= self._ack_deadline():
+            self._stall_reported = True
+            self._events.append(LinkFailed(self._stall_message()))
+
+    # -- internals -----------------------------------------------------------------
+
+    def _prepare(self, text: str, tag: object) -> _Line:
+        wire = self._wire_text(text)
+        return _Line(wire, tag, is_eeprom_write(wire), dwell_seconds(wire))
+
+    def _wire_text(self, text: str) -> str:
+        """*text* as GRBL will see it; CommandRejected when it cannot take it."""
+        if not text.strip():
+            raise CommandRejected("empty command: there is nothing to send")
+        bad = next((char for char in text if not " " <= char <= "~"), None)
+        if bad is not None:
+            raise CommandRejected(
+                f"{text!r} holds {bad!r}: GRBL takes printable ASCII only"
+            )
+        realtime = next((char for char in text if char in "?!~"), None)
+        if realtime is not None:
+            raise CommandRejected(
+                f"{text!r} holds {realtime!r}, a GRBL realtime command that would act "
+                "at once; send it alone with send_emergency()"
+            )
+        wire = self._compacted(text.strip())
+        if len(wire) > self.max_line_length:
+            raise CommandRejected(
+                f"'{wire}' is {len(wire)} characters long; GRBL takes at most "
+                f"{self.max_line_length} per line"
+            )
+        return wire
+
+    def _compacted(self, text: str) -> str:
+        # Spaces are free for GRBL to ignore but cost buffer bytes. `$` lines (stored
+        # startup lines, build info), comments and quoted text keep theirs.
+        if not self.compact or text.startswith("$") or any(c in text for c in "(\"'"):
+            return text
+        return text.replace(" ", "")
+
+    def _blocker(self, line: _Line) -> str | None:
+        """Why *line* cannot go now, or None when it can."""
+        if self._reset_sent_at is not None:
+            return "a soft reset was sent and GRBL has not restarted yet"
+        pending = [*self._outbox, *self._waiting]
+        if any(other.sync for other in pending):
+            return "an EEPROM write is waiting for its answer"
+        if line.sync and pending:
+            return "an EEPROM write goes only when nothing else is in flight"
+        used = sum(other.size for other in pending)
+        if used + line.size > self.rx_buffer:
+            return f"GRBL's RX buffer has {self.rx_buffer - used} bytes free"
+        return None
+
+    def _read_line(self, raw: bytes, now: float) -> None:
+        text = raw.decode("utf-8", errors="replace").strip()
+        if not text:
+            return
+        response = parse_response(text)
+        self._events.append(Received(text, response.kind))
+        meaning = response.meaning
+        if isinstance(meaning, Answer):
+            self._answer(meaning, now)
+            return
+        if isinstance(meaning, StatusReport):
+            self._status(meaning, now)
+        elif isinstance(meaning, FirmwareReset):
+            self.abandon()
+            self._reset_sent_at = None
+            self._poll_pending_since = None
+        self._events.append(meaning)
+
+    def _answer(self, answer: Answer, now: float) -> None:
+        if not self._waiting:
+            return  # the answer to a line abandoned since: nothing waits for it
+        line = self._waiting.popleft()
+        self._progress_at = now
+        self._stall_reported = False
+        if answer.failed:
+            self._events.append(CommandFailed(line.tag, answer.message, answer.code))
+        else:
+            self._events.append(Ack(line.tag))
+
+    def _status(self, report: StatusReport, now: float) -> None:
+        self.last_status = report
+        self._poll_pending_since = None
+        if report.state.partition(":")[0] in _WORKING_STATES:
+            # ok is held back while the planner is full; motion proves GRBL is alive.
+            self._progress_at = now
+            self._stall_reported = False
+
+    def _next_poll_at(self) -> float | None:
+        if self.status_interval is None or self._now is None:
+            return None
+        if self._last_poll_at is None:
+            due = self._now
+        else:
+            due = self._last_poll_at + self.status_interval
+        if self._poll_pending_since is not None:
+            due = max(due, self._poll_pending_since + _POLL_RETRY)
+        return due
+
+    def _poll_due(self) -> bool:
+        due = self._next_poll_at()
+        return due is not None and self._now is not None and self._now >= due
+
+    def _oldest(self) -> _Line:
+        return self._waiting[0] if self._waiting else self._outbox[0]
+
+    def _ack_deadline(self) -> float:
+        return self._progress_at + self.ack_timeout + self._oldest().dwell
+
+    def _stall_message(self) -> str:
+        return (
+            f"GRBL did not answer '{self._oldest().text}' within "
+            f"{self.ack_timeout:g} s and reported no motion; GRBL never drops a line "
+            "it took, so the stream cannot be trusted"
+        )
+
+
+def _check_settings(
+    rx_buffer: int,
+    max_line_length: int,
+    ack_timeout: float,
+    status_interval: float | None,
+) -> None:
+    if max_line_length < 1:
+        raise ValueError(f"max_line_length must be at least 1, not {max_line_length}")
+    if rx_buffer < max_line_length + 1:
+        raise ValueError(
+            f"rx_buffer ({rx_buffer}) must hold the longest line and its newline "
+            f"({max_line_length + 1} bytes)"
+        )
+    if not ack_timeout > 0:
+        raise ValueError(f"ack_timeout must be positive, not {ack_timeout}")
+    if status_interval is not None and not status_interval > 0:
+        raise ValueError(
+            f"status_interval must be positive or None, not {status_interval}"
+        )
