@@ -64,5 +64,7 @@ def test_log_retention_keeps_the_newest_lines(make_printer):
     log.flush()
 
     assert log.prune() == 15
-    kept = list(ResponseLine.objects.filter(printer=printer).values_list("seq", flat=True))
+    kept = list(
+        ResponseLine.objects.filter(printer=printer).values_list("seq", flat=True)
+    )
     assert kept == list(range(16, 26))
