@@ -1,0 +1,81 @@
+"""The control socket's commands: faults and resets a test can trigger at run time."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from printers.simulator.runner import Simulator
+
+__all__ = ["COMMANDS", "run"]
+
+COMMANDS = (
+    "reset",
+    "close",
+    "reopen",
+    "busy <seconds>",
+    "corrupt <share>",
+    "drop-ok <every_n>",
+    "halt",
+    "stats",
+)
+
+
+def run(sim: Simulator, line: str, now: float) -> str:
+    """Apply one command line; returns the answer. Raises ValueError for bad input."""
+    name, *args = line.split()
+    name = name.lower()
+    if name in ("reset", "close", "reopen", "halt", "stats") and args:
+        raise ValueError(f"{name} takes no argument")
+    if name == "reset":
+        sim.firmware.reset(now)
+    elif name == "close":
+        sim.close_ports()
+    elif name == "reopen":
+        sim.reopen_ports(now)
+    elif name == "halt":
+        sim.firmware.halt(now)
+    elif name == "stats":
+        return "ok " + json.dumps(_stats(sim))
+    elif name in ("busy", "corrupt", "drop-ok"):
+        _set(sim, name, _one_number(name, args), now)
+    else:
+        raise ValueError(f"unknown command {name!r}; known: {', '.join(COMMANDS)}")
+    return "ok"
+
+
+def _one_number(name: str, args: list[str]) -> float:
+    if len(args) != 1:
+        raise ValueError(f"{name} takes one number")
+    try:
+        return float(args[0])
+    except ValueError:
+        raise ValueError(f"{name}: not a number: {args[0]!r}") from None
+
+
+def _set(sim: Simulator, name: str, value: float, now: float) -> None:
+    config = sim.faults.config
+    if name == "busy":
+        if value < 0:
+            raise ValueError("busy: seconds must not be negative")
+        sim.firmware.stall(now, value)
+    elif name == "corrupt":
+        if not 0 <= value <= 1:
+            raise ValueError("corrupt: share must be between 0 and 1")
+        config.corrupt = value
+    else:
+        if value < 0 or value != int(value):
+            raise ValueError("drop-ok: every_n must be a whole number >= 0")
+        config.drop_ok_every = int(value)
+
+
+def _stats(sim: Simulator) -> dict[str, object]:
+    firmware = sim.firmware
+    return {
+        "executed": firmware.executed_count,
+        "dropped_bytes": firmware.dropped_bytes,
+        "corrupted_lines": sim.faults.corrupted,
+        "dropped_oks": sim.faults.dropped_oks,
+        "closed": sim.closed,
+    }

@@ -1,0 +1,179 @@
+"""Command line of the firmware simulators: `python -m printers.simulator marlin --link ./printer0`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from printers.simulator.faults import FaultConfig, Faults
+from printers.simulator.grbl import GrblFirmware
+from printers.simulator.marlin import MarlinFirmware
+from printers.simulator.runner import (
+    Recorder,
+    RunnerConfig,
+    SetupError,
+    Simulator,
+    write_ready_line,
+)
+
+__all__ = ["build_parser", "main"]
+
+_DESCRIPTION = """\
+Simulate a Marlin or GRBL controller on a pty (and/or TCP), paced at the
+serial baud rate in both directions. Prints one JSON line when ready:
+{"ready": true, "pty": ..., "tcp": ..., "pid": ...}.
+Control socket commands: reset, close, reopen, busy <seconds>,
+corrupt <share>, drop-ok <every_n>, halt, stats.
+"""
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=prog or "python -m printers.simulator",
+        description=_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("firmware", choices=("marlin", "grbl"))
+    ports = parser.add_argument_group("ports")
+    ports.add_argument("--link", type=Path, help="symlink to create for the pty")
+    ports.add_argument(
+        "--tcp", metavar="HOST:PORT", help="also listen on TCP (port 0 = any)"
+    )
+    ports.add_argument("--baud", type=int, default=115200, help="0 = unthrottled")
+    ports.add_argument("--latency-ms", type=float, default=0.0, help="each direction")
+    ports.add_argument("--record", type=Path, help="append executed commands here")
+    ports.add_argument("--control", type=Path, help="Unix socket for control commands")
+    machine = parser.add_argument_group("firmware")
+    machine.add_argument("--rx-buffer", type=int, default=128, help="UART ring bytes")
+    machine.add_argument("--bufsize", type=int, default=4, help="Marlin command slots")
+    machine.add_argument("--planner", type=int, default=16, help="planner blocks")
+    machine.add_argument("--time-scale", type=float, default=1.0, help="0 = instant")
+    machine.add_argument(
+        "--advanced-ok", action=argparse.BooleanOptionalAction, default=True
+    )
+    machine.add_argument(
+        "--emergency-parser", action=argparse.BooleanOptionalAction, default=True
+    )
+    machine.add_argument(
+        "--keepalive", type=float, default=2.0, help="seconds; 0 = off"
+    )
+    faults = parser.add_argument_group("faults")
+    faults.add_argument("--corrupt", type=float, default=0.0, metavar="SHARE")
+    faults.add_argument("--seed", type=int)
+    faults.add_argument("--drop-ok-every", type=int, default=0, metavar="N")
+    faults.add_argument("--reset-after", type=int, default=0, metavar="N")
+    faults.add_argument("--busy-after", type=int, default=0, metavar="N")
+    faults.add_argument("--busy-seconds", type=float, default=0.0, metavar="S")
+    faults.add_argument("--close-after", type=int, default=0, metavar="N")
+    faults.add_argument("--reopen-after", type=float, metavar="S")
+    return parser
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """Run a simulator until SIGTERM/SIGINT; 2 for bad arguments or ports."""
+    parser = build_parser(prog)
+    try:
+        args = parser.parse_args(argv)
+        config = _runner_config(parser, args)
+        faults = Faults(_fault_config(parser, args))
+    except SystemExit as stop:
+        return stop.code if isinstance(stop.code, int) else 2
+    try:
+        recorder = Recorder(args.record) if args.record else None
+    except OSError as error:
+        return _fail(parser, f"--record {args.record}: {error.strerror}")
+    firmware = _firmware(args, faults, recorder)
+    simulator = Simulator(firmware, config, faults, recorder)
+    try:
+        info = simulator.start()
+    except SetupError as error:
+        return _fail(parser, str(error))
+    try:
+        write_ready_line(info)
+        simulator.run()
+    finally:
+        simulator.close()
+    return 0
+
+
+def _fail(parser: argparse.ArgumentParser, message: str) -> int:
+    sys.stderr.write(f"{parser.prog}: error: {message}\n")
+    return 2
+
+
+def _runner_config(
+    parser: argparse.ArgumentParser, args: argparse.Namespace
+) -> RunnerConfig:
+    if args.link is None and args.tcp is None:
+        parser.error("give --link PATH and/or --tcp HOST:PORT")
+    if args.baud < 0 or args.latency_ms < 0 or args.time_scale < 0:
+        parser.error("--baud, --latency-ms and --time-scale must not be negative")
+    if min(args.rx_buffer, args.bufsize, args.planner) < 1:
+        parser.error("--rx-buffer, --bufsize and --planner must be at least 1")
+    if args.link is not None and not args.link.parent.is_dir():
+        parser.error(f"--link {args.link}: folder {args.link.parent} does not exist")
+    return RunnerConfig(
+        link=args.link,
+        tcp=_tcp_address(parser, args.tcp) if args.tcp else None,
+        baud=args.baud or None,
+        latency=args.latency_ms / 1000.0,
+        record=args.record,
+        control=args.control,
+    )
+
+
+def _tcp_address(parser: argparse.ArgumentParser, text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or int(port) > 65535:
+        parser.error(f"--tcp {text!r}: expected HOST:PORT, for example 127.0.0.1:0")
+    return host.strip("[]"), int(port)
+
+
+def _fault_config(
+    parser: argparse.ArgumentParser, args: argparse.Namespace
+) -> FaultConfig:
+    config = FaultConfig(
+        corrupt=args.corrupt,
+        seed=args.seed,
+        drop_ok_every=args.drop_ok_every,
+        reset_after=args.reset_after,
+        busy_after=args.busy_after,
+        busy_seconds=args.busy_seconds,
+        close_after=args.close_after,
+        reopen_after=args.reopen_after,
+    )
+    try:
+        config.validate()
+    except ValueError as error:
+        parser.error(str(error))
+    return config
+
+
+def _firmware(
+    args: argparse.Namespace, faults: Faults, recorder: Recorder | None
+) -> MarlinFirmware | GrblFirmware:
+    on_execute = recorder.add if recorder is not None else None
+    now = time.monotonic()
+    if args.firmware == "grbl":
+        return GrblFirmware(
+            rx_buffer=args.rx_buffer,
+            planner=args.planner,
+            time_scale=args.time_scale,
+            faults=faults,
+            on_execute=on_execute,
+            now=now,
+        )
+    return MarlinFirmware(
+        rx_buffer=args.rx_buffer,
+        bufsize=args.bufsize,
+        planner=args.planner,
+        time_scale=args.time_scale,
+        advanced_ok=args.advanced_ok,
+        emergency_parser=args.emergency_parser,
+        keepalive=args.keepalive,
+        faults=faults,
+        on_execute=on_execute,
+        now=now,
+    )

@@ -1,0 +1,112 @@
+"""Fault injection for the simulators: corrupted lines, lost oks, resets, stalls, closed ports."""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+__all__ = ["FaultConfig", "Faults"]
+
+#: Replacement bytes for a corrupted line: printable, never a line end, never one
+#: of GRBL's realtime characters, so a corrupted line stays one (wrong) line.
+_ALPHABET = b"0123456789ABCDEFGHJKLMNPQRSTUVWXYZ .-"
+
+
+@dataclass
+class FaultConfig:
+    """What to break; zero or None switches a fault off."""
+
+    #: Share (0..1) of received lines that get one byte replaced.
+    corrupt: float = 0.0
+    seed: int | None = None
+    #: Drop the ok of every Nth command.
+    drop_ok_every: int = 0
+    #: Drop this share (0..1) of oks at random.
+    drop_ok_share: float = 0.0
+    #: Reset the firmware once, after N executed commands.
+    reset_after: int = 0
+    #: Stay busy (no ok, keepalives) for *busy_seconds* at the Nth command, once.
+    busy_after: int = 0
+    busy_seconds: float = 0.0
+    #: Close the port once, after N executed commands ...
+    close_after: int = 0
+    #: ... and open it again this many seconds later (None: stay closed).
+    reopen_after: float | None = None
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first setting out of range."""
+        for name in ("corrupt", "drop_ok_share"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be between 0 and 1")
+        for name in ("drop_ok_every", "reset_after", "busy_after", "close_after"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must not be negative")
+        if self.busy_seconds < 0 or (self.reopen_after or 0) < 0:
+            raise ValueError("durations must not be negative")
+
+
+class Faults:
+    """The live fault state a firmware model and the runner consult.
+
+    The firmware asks `corrupt_line` for each received line, `busy_for` before a
+    command, `drop_ok` before an ok and `reset_due` after a command. The runner
+    asks `close_due`. One-shot faults fire once; settings may change at any time.
+    """
+
+    def __init__(self, config: FaultConfig | None = None) -> None:
+        self.config = config or FaultConfig()
+        self.config.validate()
+        self._random = random.Random(self.config.seed)
+        self._oks = 0
+        self._fired: set[str] = set()
+        self.corrupted = 0
+        self.dropped_oks = 0
+
+    def corrupt_line(self, line: bytes) -> bytes:
+        """*line* (no line end), with one byte replaced for the configured share of lines.
+
+        The leading `N` of a numbered line is spared: Marlin would run the result
+        as an unnumbered, unchecked command, which tests the firmware's weakness,
+        not the host's resend handling.
+        """
+        share = self.config.corrupt
+        if not line or share <= 0 or self._random.random() >= share:
+            return line
+        first = 1 if line[:1] == b"N" and len(line) > 1 else 0
+        position = self._random.randrange(first, len(line))
+        choices = _ALPHABET.replace(line[position : position + 1], b"")
+        replacement = choices[self._random.randrange(len(choices))]
+        self.corrupted += 1
+        return line[:position] + bytes((replacement,)) + line[position + 1 :]
+
+    def drop_ok(self) -> bool:
+        """True when the ok about to be sent should be lost."""
+        self._oks += 1
+        every = self.config.drop_ok_every
+        drop = bool(every) and self._oks % every == 0
+        share = self.config.drop_ok_share
+        if not drop and share > 0:
+            drop = self._random.random() < share
+        if drop:
+            self.dropped_oks += 1
+        return drop
+
+    def busy_for(self, count: int) -> float:
+        """Seconds the firmware should stall before running command number *count*."""
+        if self._once("busy", self.config.busy_after, count):
+            return self.config.busy_seconds
+        return 0.0
+
+    def reset_due(self, count: int) -> bool:
+        """True once, right after command number *count* = reset_after finished."""
+        return self._once("reset", self.config.reset_after, count)
+
+    def close_due(self, count: int) -> bool:
+        """True once, when *count* executed commands reached close_after."""
+        return self._once("close", self.config.close_after, count)
+
+    def _once(self, name: str, threshold: int, count: int) -> bool:
+        if threshold <= 0 or count < threshold or name in self._fired:
+            return False
+        self._fired.add(name)
+        return True

@@ -1,0 +1,393 @@
+"""Marlin 2.1 as a host sees it over serial, sans-IO: RX ring, line checks, queue, planner.
+
+Rules of this module:
+1. Bytes come in through `receive(data, now)` (already paced by a Wire); time
+   passes only through `now` arguments; output leaves through `data_to_send()`.
+2. Every reply uses Marlin's own wording (queue.cpp, language.h, M115.cpp), so a
+   host that works here works against the firmware.
+3. Command handlers either finish at once (return None) or are generators that
+   yield what they wait for: a time (float) or a condition (callable -> bool).
+   The executor resumes them with the current time.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+from typing import TYPE_CHECKING
+
+from printers.protocol.checksum import parse_framed_line
+from printers.simulator import _marlin_text as text
+from printers.simulator._marlin_machine import MarlinMachine, words
+from printers.simulator._rx import LineReader
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from printers.simulator._marlin_machine import Handler, Job, Wait
+    from printers.simulator._motion import Planner
+    from printers.simulator.faults import Faults
+
+__all__ = ["MarlinFirmware"]
+
+#: MAX_CMD_SIZE - 1: the rest of a longer line is skipped.
+MAX_LINE = 95
+#: The line the emergency parser reacts to (it sees bytes before the ring does).
+_EMERGENCY = re.compile(rb"(?m)^[ \t]*(?:N-?\d+[ \t]*)?M(108|112|410)(?![0-9])[^\n]*\n")
+_CODE = re.compile(r"([GMTgmt])\s*(\d+)")
+
+
+class _Command:
+    __slots__ = ("number", "text")
+
+    def __init__(self, text: str, number: int | None) -> None:
+        self.text = text
+        self.number = number
+
+
+class MarlinFirmware:
+    """A Marlin printer: 4-slot command queue, 16-block planner, hotend and bed.
+
+    `executed_count` counts commands taken from the queue; *on_execute* gets each
+    one's text (without line number and checksum) in execution order.
+    """
+
+    WAKE_BYTES = b"\n\r"
+
+    def __init__(
+        self,
+        *,
+        rx_buffer: int = 128,
+        bufsize: int = 4,
+        planner: int = 16,
+        time_scale: float = 1.0,
+        advanced_ok: bool = True,
+        emergency_parser: bool = True,
+        keepalive: float = 2.0,
+        faults: Faults | None = None,
+        on_execute: Callable[[str], None] | None = None,
+        now: float = 0.0,
+    ) -> None:
+        self.rx_buffer = rx_buffer
+        self.bufsize = bufsize
+        self.planner_blocks = planner
+        self.time_scale = time_scale
+        self.advanced_ok = advanced_ok
+        self.emergency_parser = emergency_parser
+        self.default_keepalive = keepalive
+        self.faults = faults
+        self.on_execute = on_execute
+        self.executed_count = 0
+        self._out: list[str] = []
+        self._reader = LineReader(rx_buffer, self._on_line, self._has_slot)
+        self.reset(now)
+
+    @property
+    def planner(self) -> Planner:
+        return self.machine.planner
+
+    # -- the sans-IO surface ---------------------------------------------------------
+
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes that arrived from the host by *now*."""
+        if self.killed or not data:
+            return
+        now = float(now)
+        self.step(now)
+        if self.emergency_parser:
+            self._scan_emergency(data, now)
+            if self.killed:
+                return
+            if self._poked:
+                self._execute(now)
+        self._reader.feed(data, now)
+
+    def step(self, now: float) -> None:
+        """Advance reports, moves, heaters and blocked commands to *now*."""
+        if self.killed:
+            return
+        now = max(float(now), self._clock)
+        self._clock = now
+        self.planner.advance(now)
+        self._tick_reports(now)
+        self._execute(now)
+        self._reader.drain(now)
+
+    def data_to_send(self) -> bytes:
+        """Everything printed since the last call."""
+        if not self._out:
+            return b""
+        data = "".join(self._out).encode("ascii", "replace")
+        self._out.clear()
+        return data
+
+    def next_deadline(self) -> float | None:
+        """The next time `step` has something to do, or None."""
+        if self.killed:
+            return None
+        times = [self._keepalive_at, self._report_at]
+        if self._job is not None:
+            times.append(self._wait if isinstance(self._wait, float) else None)
+            times.append(self.planner.next_deadline())
+        if self._queue and self._stall_until > self._clock:
+            times.append(self._stall_until)
+        pending = [t for t in times if t is not None]
+        return min(pending) if pending else None
+
+    # -- control (the runner's control socket and faults) ---------------------------
+
+    def reset(self, now: float) -> None:
+        """Power-on or reset: forget everything, print the boot banner."""
+        self._clock = now
+        self.killed = False
+        self._reader.flush()
+        self._queue: deque[_Command] = deque()
+        self._job: Job | None = None
+        self._wait: Wait | None = None
+        self._poked = False
+        self._last_n = 0
+        self._ep_tail = b""
+        self._stall_until = 0.0
+        self._keepalive_at: float | None = None
+        self._report_at: float | None = None
+        self._report_interval = 0.0
+        self.keepalive = self.default_keepalive
+        self.machine = MarlinMachine(
+            self._print,
+            planner=self.planner_blocks,
+            time_scale=self.time_scale,
+            now=now,
+        )
+        self._handlers = self._handler_table()
+        self._print(*text.BOOT)
+
+    def halt(self, now: float) -> None:
+        """kill(): what M112 does. Nothing works until `reset`."""
+        self._print("Error:Printer halted. kill() called!", "//action:kill")
+        self.killed = True
+        self._reader.flush()
+        self._queue.clear()
+        self._job = None
+        self.machine.switch_off(now)
+
+    def stall(self, now: float, seconds: float) -> None:
+        """Stay busy for *seconds*: nothing starts or finishes, keepalives go out."""
+        self._stall_until = max(self._stall_until, now + seconds)
+        self._update_busy(now)
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes lost because they arrived while the RX ring was full."""
+        return self._reader.dropped
+
+    # -- reading lines ---------------------------------------------------------------
+
+    def _has_slot(self) -> bool:
+        return len(self._queue) < self.bufsize and not self.killed
+
+    def _scan_emergency(self, data: bytes, now: float) -> None:
+        """EMERGENCY_PARSER: act on M108/M112/M410 as their line end arrives."""
+        chunk = self._ep_tail + data.replace(b"\r", b"\n")
+        cut = chunk.rfind(b"\n") + 1
+        self._ep_tail = chunk[cut:][-64:]
+        if b"M" not in chunk[:cut]:
+            return
+        for match in _EMERGENCY.finditer(chunk, 0, cut):
+            self._emergency(match[1].decode(), now)
+            if self.killed:
+                return
+
+    def _emergency(self, code: str, now: float) -> None:
+        if code == "112":
+            # Recorded here: a kill() stops everything, so it never reaches the queue.
+            if self.on_execute is not None:
+                self.on_execute("M112")
+            self.halt(now)
+        elif code == "108":
+            self.machine.cancel_wait = True
+            self._poked = True
+        else:
+            self.machine.quickstop(now)
+            self._poked = True
+
+    def _on_line(self, raw: bytes, now: float) -> None:
+        if self.faults is not None:
+            raw = self.faults.corrupt_line(raw)
+        line = raw.decode("latin-1")
+        if ";" in line:
+            line = line[: line.index(";")]
+        line = line[:MAX_LINE].strip()
+        if not line:
+            return
+        number = None
+        if line[0] == "N":
+            checked = self._check_line(line)
+            if checked is None:
+                return
+            number, line = checked
+        if not self.emergency_parser and line[:1] in "Mm":
+            self._early_emergency(line, now)
+            if self.killed:
+                return
+        self._queue.append(_Command(line, number))
+        self._execute(now)
+
+    def _check_line(self, line: str) -> tuple[int, str] | None:
+        """Marlin's order: line number, then checksum. Returns (number, command)."""
+        number, command, good = parse_framed_line(line)
+        expected = number
+        if "M110" in line:
+            second = re.search(r"N(-?\d+)", line[4:])
+            expected = int(second[1]) if second else number
+        elif (number if number is not None else 0) != self._last_n + 1:
+            self._line_error(text.ERR_LINE_NO)
+            return None
+        if not good:
+            star = "*" in line
+            self._line_error(text.ERR_CHECKSUM if star else text.ERR_NO_CHECKSUM)
+            return None
+        self._last_n = expected if expected is not None else 0
+        return (number if number is not None else 0), command
+
+    def _line_error(self, message: str) -> None:
+        """gcode_line_error: report, flush the RX ring, ask for the line again, ok."""
+        self._print(f"Error:{message}{self._last_n}")
+        self._reader.flush()
+        self._print(f"Resend: {self._last_n + 1}", "ok")
+
+    def _early_emergency(self, line: str, now: float) -> None:
+        """Without the parser, queue.cpp acts on these when the line is read."""
+        code = _CODE.match(line)
+        if code is not None and code[2] in ("108", "112", "410"):
+            self._emergency(code[2], now)
+
+    # -- executing commands ----------------------------------------------------------
+
+    def _execute(self, now: float) -> None:
+        """Run queued commands in order until one blocks or the queue is empty."""
+        while self._queue and not self.killed:
+            if self._job is not None:
+                if not self._resume(now):
+                    break
+            else:
+                if now < self._stall_until:
+                    break
+                if self.faults is not None:
+                    stall = self.faults.busy_for(self.executed_count + 1)
+                    if stall > 0:
+                        self._stall_until = now + stall
+                        break
+                job = self._dispatch(self._queue[0], now)
+                if job is not None and not self._start(job, now):
+                    break
+            self._finish(now)
+        self._update_busy(now)
+
+    def _start(self, job: Job, now: float) -> bool:
+        """Run a blocking handler up to its first wait; True if it finished at once."""
+        try:
+            self._wait = next(job)
+        except StopIteration:
+            return True
+        self._job = job
+        return self._resume(now)
+
+    def _resume(self, now: float) -> bool:
+        """Drive the blocked head command; True once it has finished."""
+        job = self._job
+        while job is not None:
+            wait = self._wait
+            if not self._poked and not (
+                now >= wait if isinstance(wait, float) else wait()
+            ):
+                return False
+            self._poked = False
+            try:
+                self._wait = job.send(now)
+            except StopIteration:
+                self._job = self._wait = None
+                return True
+        return True
+
+    def _dispatch(self, command: _Command, now: float) -> Job | None:
+        self.executed_count += 1
+        if self.on_execute is not None:
+            self.on_execute(command.text)
+        code = _CODE.match(command.text)
+        handler = None
+        if code is not None:
+            handler = self._handlers.get(code[1].upper() + str(int(code[2])))
+        if handler is None:
+            self._print(f'echo:Unknown command: "{command.text}"')
+            return None
+        return handler(command.text[code.end() :], now)
+
+    def _finish(self, now: float) -> None:
+        """ok_to_send(), while the command still counts in the queue; then free its slot."""
+        command = self._queue[0]
+        reply, self.machine.custom_ok = self.machine.custom_ok, None
+        if self.faults is not None and self.faults.drop_ok():
+            reply = None
+        elif reply is None:
+            reply = "ok"
+            if self.advanced_ok:
+                n = "" if command.number is None else f" N{command.number}"
+                free = self.bufsize - len(self._queue)
+                reply = f"ok{n} P{self.planner.free} B{free}"
+        if reply is not None:
+            self._out.append(reply + "\n")
+        self._queue.popleft()
+        self._keepalive_at = None  # idle() between commands restarts its timer
+        if self.faults is not None and self.faults.reset_due(self.executed_count):
+            self.reset(now)
+
+    def _update_busy(self, now: float) -> None:
+        """host_keepalive: `busy: processing` every interval while a command blocks."""
+        blocked = self._job is not None or (self._queue and now < self._stall_until)
+        if not blocked or self.keepalive <= 0:
+            self._keepalive_at = None
+        elif self._keepalive_at is None:
+            self._keepalive_at = now + self.keepalive
+
+    def _tick_reports(self, now: float) -> None:
+        at = self._keepalive_at
+        if at is not None and now >= at:
+            self._print("echo:busy: processing")
+            self._keepalive_at = max(at + self.keepalive, now)
+        at = self._report_at
+        if at is not None and now >= at:
+            self._print(" " + self.machine.temperatures(now))
+            self._report_at = max(at + self._report_interval, now)
+
+    def _print(self, *lines: str) -> None:
+        self._out.extend(line + "\n" for line in lines)
+
+    # -- the commands that touch the serial side -------------------------------------
+
+    def _handler_table(self) -> dict[str, Handler]:
+        table = self.machine.handlers()
+        table.update(
+            M110=self._m110,
+            M113=self._m113,
+            M115=self._m115,
+            M155=self._m155,
+        )
+        return table
+
+    def _m110(self, args: str, now: float) -> None:
+        given = words(args)
+        if "N" in given:
+            self._last_n = int(given["N"])
+
+    def _m113(self, args: str, now: float) -> None:
+        given = words(args)
+        if "S" in given:
+            self.keepalive = min(max(given["S"], 0.0), 60.0)
+
+    def _m115(self, args: str, now: float) -> None:
+        self._print(text.firmware_info(emergency_parser=self.emergency_parser))
+
+    def _m155(self, args: str, now: float) -> None:
+        interval = words(args).get("S", 0.0)
+        self._report_interval = interval
+        self._report_at = now + interval if interval > 0 else None
