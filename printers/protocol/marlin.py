@@ -1,7 +1,8 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below only carries them out (h11's _state.py habit).
+# the code below, marlin_window.py and marlin_recovery.py only carry them out (h11's
+# _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
@@ -88,23 +89,20 @@ from __future__ import annotations
 
 import re
 from collections import deque
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from printers.protocol.checksum import format_line
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
-    Ack,
     FirmwareMessage,
     FirmwareReset,
     LineKind,
     LinkFailed,
     Received,
-    ResendServed,
     Sent,
 )
-from printers.protocol.history import LineHistory
+from printers.protocol.marlin_recovery import Recovery
 from printers.protocol.marlin_responses import Reply, ReplyKind, parse_response
+from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -115,42 +113,17 @@ __all__ = ["MarlinProtocol"]
 
 _CHECKSUM_MODES = ("always", "never", "printing")
 _FLOW_MODES = ("auto", "ping_pong", "buffered")
-_LONG_RUNNING = frozenset(
-    {"M109", "M190", "M191", "M303", "G28", "G29", "M400", "G4", "M0", "M1", "M600"}
-)
 _NEWLINES = re.compile(rb"\r\n|\r|\n")
-_M110 = re.compile(r"M110(?:\s+N(-?\d+))?\b", re.IGNORECASE)
 _MAX_PARTIAL = 4096
-_RTT_START = 0.05
-_RTT_CAP = 1.0
-
-
-@dataclass(eq=False, slots=True)
-class _Line:
-    """One command on its way; compared by identity."""
-
-    text: str
-    tag: object = None
-    internal: bool = False
-    numbered: bool = False
-    #: The line number an M110 sets (its own N), None for other commands.
-    m110: int | None = None
-    wire: str = ""
-    number: int | None = None
-    resend: bool = False
-    sent_at: float | None = None
-
-    @property
-    def cost(self) -> int:
-        return len(self.wire) + 1
-
-    @property
-    def word(self) -> str:
-        return self.text.split(None, 1)[0].upper()
 
 
 class MarlinProtocol:
-    """The Marlin side of the LinkProtocol contract (see printers.protocol.link)."""
+    """The Marlin side of the LinkProtocol contract (see printers.protocol.link).
+
+    Lines and the window live in a LineWindow (marlin_window), acknowledgements,
+    resends and timeouts in a Recovery over it (marlin_recovery); this class frames
+    commands, reads replies and keeps the flow mode.
+    """
 
     def __init__(
         self,
@@ -179,36 +152,33 @@ class MarlinProtocol:
             )
         if min(ack_timeout, busy_timeout, baud) <= 0:
             raise ValueError("ack_timeout, busy_timeout and baud must be > 0")
-        self._checksums, self._flow, self._baud = checksums, flow, baud
-        self._rx_buffer, self._bufsize = rx_buffer, bufsize
-        self._max_length, self._max_resends = max_line_length, max_resends
-        self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
-        self._max_timeouts = max_timeouts
+        self._checksums, self._flow = checksums, flow
+        self._bufsize, self._max_length = bufsize, max_line_length
         #: True while a job is streaming (checksums="printing" numbers lines then).
         self.printing = False
-        #: Statistics: genuine resend requests served, lines written, ack timeouts.
-        self.resends = self.lines_sent = self.timeouts = 0
+        #: Statistics: lines written (resends and timeouts: see the properties).
+        self.lines_sent = 0
         self._events: deque[Event] = deque()
         self._rx = b""
-        self._clock = 0.0
-        self._history = LineHistory()
-        self._advanced, self._max_b, self._rtt = False, 0, _RTT_START
-        self._live: deque[_Line] = deque()
-        self._outbox: deque[_Line] = deque()
-        self._urgent: list[_Line] = []
-        self._queued: deque[_Line] = deque()
+        self._advanced, self._max_b = False, 0
         self._previous: Reply | None = None
-        self._next_n = 0
-        self.abandon()
+        self._window = LineWindow(rx_buffer=rx_buffer, baud=baud)
+        self._recovery = Recovery(
+            self._window,
+            self._events,
+            self._fail,
+            max_resends=max_resends,
+            max_timeouts=max_timeouts,
+            ack_timeout=ack_timeout,
+            busy_timeout=busy_timeout,
+        )
 
     # -- read-only state -------------------------------------------------------------
 
     @property
     def in_flight(self) -> int:
         """Commands sent (or queued to go) and not yet answered."""
-        return (
-            len(self._live) + len(self._queued) + self._rewind_end - self._rewind_next
-        )
+        return self._window.in_flight
 
     @property
     def flow_mode(self) -> str:
@@ -227,25 +197,36 @@ class MarlinProtocol:
     @property
     def bytes_in_flight(self) -> int:
         """Bytes charged to the firmware's RX buffer: live lines plus draining dead ones."""
-        return sum(line.cost for line in self._live) + self._dead_bytes
+        return self._window.bytes_in_flight
+
+    @property
+    def resends(self) -> int:
+        """Statistics: genuine resend requests served."""
+        return self._recovery.resends
+
+    @property
+    def timeouts(self) -> int:
+        """Statistics: ack timeouts (T1)."""
+        return self._recovery.timeouts
 
     # -- the LinkProtocol contract ---------------------------------------------------
 
     def can_send(self, text: str) -> bool:
         """True when *text* may be queued now without breaking the window (W1-W3)."""
-        if self._queued or self._rewind_next < self._rewind_end or self._m110_live():
+        window = self._window
+        if window.queued or window.rewinding or window.m110_live():
             return False
         line = self._new_line(text.strip(), None)
-        if line.numbered and self._need_m110:
-            line = self._new_m110(0, None)
-        self._frame(line)
-        return self._room_for(line)
+        if line.numbered and window.need_m110:
+            line = m110_line(0, None)
+        window.frame(line)
+        return window.room_for(line, self._max_lines())
 
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one command; Ack(tag) follows its ok. See F1-F4 for framing."""
-        self._advance(now)
+        self._window.advance(now)
         line = self._new_line(_validate(text), tag)
-        self._frame(line)
+        self._window.frame(line)
         if len(line.wire) > self._max_length:
             raise CommandRejected(
                 f"line {line.wire!r} is {len(line.wire)} characters on the wire; the "
@@ -253,31 +234,23 @@ class MarlinProtocol:
             )
         if self.in_flight and not self.can_send(line.text):
             raise LocalProtocolError(f"window full: cannot send {line.text!r} now")
-        if line.numbered and self._need_m110 and line.m110 is None:
-            self._queued.append(self._new_m110(0, None))
-        self._need_m110 = self._need_m110 and not line.numbered
-        self._queued.append(line)
+        self._window.enqueue(line)
         self._pump()
 
     def send_emergency(self, text: str, now: float) -> None:
         """Write *text* unnumbered ahead of everything unwritten, ignoring the window."""
-        self._advance(now)
-        line = _Line(_validate(text), internal=True)
-        line.wire = line.text
-        self._urgent.append(line)
-        if line.word != "M112":
-            self._live.append(line)
+        self._window.advance(now)
+        self._window.add_emergency(_validate(text))
 
     def reset_line_numbers(self, now: float) -> None:
         """Queue `N0 M110 N0`; the next numbered line is N1."""
-        self._advance(now)
-        self._queued.append(self._new_m110(0, None))
-        self._need_m110 = False
+        self._window.advance(now)
+        self._window.enqueue(m110_line(0, None))
         self._pump()
 
     def receive_data(self, data: bytes, now: float) -> None:
         """Feed firmware bytes; b"" only means nothing arrived (the clock still moves)."""
-        self._advance(now)
+        self._window.advance(now)
         if data:
             lines = _NEWLINES.split(self._rx + data)
             self._rx = lines.pop()
@@ -296,136 +269,48 @@ class MarlinProtocol:
     def data_to_send(self) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
         self._pump()
-        lines = [*self._urgent, *self._outbox]
-        self._urgent.clear()
-        self._outbox.clear()
+        lines = self._window.take_unwritten()
         for line in lines:
-            line.sent_at = self._clock
             self._events.append(Sent(line.wire, line.number, line.resend))
         self.lines_sent += len(lines)
         return "".join(f"{line.wire}\n" for line in lines).encode("ascii")
 
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
-        deadlines = [
-            d for d in (self._drain_until, self._ack_deadline()) if d is not None
-        ]
+        candidates = (self._window.drain_until, self._recovery.deadline())
+        deadlines = [d for d in candidates if d is not None]
         return min(deadlines) if deadlines else None
 
     def handle_timeout(self, now: float) -> None:
         """End a finished drain; on a passed ack deadline apply T1."""
-        self._advance(now)
-        deadline = self._ack_deadline()
+        self._window.advance(now)
+        deadline = self._recovery.deadline()
         if deadline is not None and now >= deadline:
-            self._on_timeout(counted=True)
+            self._recovery.timeout(printing=self.printing)
         self._pump()
 
     def abandon(self) -> None:
         """Forget everything queued, live, dead and in recovery; renumber with M110."""
-        self._live.clear()
-        self._outbox.clear()
-        self._urgent.clear()
-        self._queued.clear()
-        self._rewind_next = self._rewind_end = 0
-        self._rewind_tags: dict[int, _Line] = {}
-        self._recovery_n: int | None = None
-        self._dup_budget = self._repeats = self._consecutive_timeouts = 0
-        self._timeout_recovery = self._await_resend_ok = self._busy_seen = False
-        self._dead_bytes = 0
-        self._drain_until: float | None = None
-        self._last_progress = self._clock
-        self._need_m110 = True
+        self._window.clear()
+        self._recovery.reset()
 
     # -- framing and the window ------------------------------------------------------
 
-    def _new_line(self, text: str, tag: object) -> _Line:
-        if match := _M110.match(text):
-            return self._new_m110(int(match[1] or 0), tag)
+    def _new_line(self, text: str, tag: object) -> Line:
         numbered = self._checksums == "always" or (
             self._checksums == "printing" and self.printing
         )
-        return _Line(text, tag, numbered=numbered)
+        return new_line(text, tag, numbered=numbered)
 
-    def _new_m110(self, n: int, tag: object) -> _Line:
-        return _Line(f"M110 N{n}", tag, internal=tag is None, numbered=True, m110=n)
-
-    def _frame(self, line: _Line) -> None:
-        """Fill in number and wire text, as the line would go out next."""
-        if line.m110 is not None:
-            line.number = line.m110
-        elif line.numbered and not line.resend:
-            line.number = self._projected_number(line)
-        line.wire = format_line(line.number, line.text) if line.numbered else line.text
-
-    def _projected_number(self, line: _Line) -> int:
-        n = 1 if self._need_m110 else self._next_n
-        for queued in self._queued:
-            if queued is line:
-                break
-            if queued.m110 is not None:
-                n = queued.m110 + 1
-            elif queued.numbered:
-                n += 1
-        return n
-
-    def _room_for(self, line: _Line) -> bool:
-        if self._drain_until is not None or self._m110_live():
-            return False
-        if not self._live:
-            return True
-        if line.m110 is not None or self.flow_mode == "ping_pong":
-            return False
-        budget = self._max_b + 1 if self._advanced else self._bufsize
-        return len(self._live) < budget and (
-            self.bytes_in_flight + line.cost <= self._rx_buffer
-        )
-
-    def _m110_next(self) -> bool:
-        """True when the M110 itself waits to be re-sent."""
-        return self._rewind_next == self._history.first < self._rewind_end
-
-    def _m110_live(self) -> bool:
-        return any(line.m110 is not None for line in self._live)
+    def _max_lines(self) -> int:
+        """W2: how many lines may be live at once in the flow mode in force."""
+        mode = self.flow_mode
+        if mode == "ping_pong":
+            return 1
+        return self._max_b + 1 if mode == "advanced" else self._bufsize
 
     def _pump(self) -> None:
-        """Move lines to re-send, then queued lines, to the wire while W2 allows."""
-        while (line := self._peek()) is not None and self._room_for(line):
-            if line.resend:
-                self._rewind_next += 1
-            else:
-                self._queued.popleft()
-                self._number(line)
-            self._live.append(line)
-            self._outbox.append(line)
-        if self._rewind_next >= self._rewind_end:
-            self._rewind_tags.clear()
-
-    def _peek(self) -> _Line | None:
-        if self._rewind_next < self._rewind_end:
-            n = self._rewind_next
-            old = self._rewind_tags.get(n)
-            text = self._history.get(n)
-            line = _Line(
-                text, None, internal=True, numbered=True, number=n, resend=True
-            )
-            if old is not None:
-                line.tag, line.internal, line.m110 = old.tag, old.internal, old.m110
-            elif _M110.match(text):
-                line.m110 = n
-        elif self._queued:
-            line = self._queued[0]
-        else:
-            return None
-        self._frame(line)
-        return line
-
-    def _number(self, line: _Line) -> None:
-        if line.number is None:
-            return
-        if line.m110 is not None:
-            self._history.clear(line.number)
-        self._history.append(line.number, line.text)
-        self._next_n = line.number + 1
+        self._window.pump(self._max_lines())
 
     # -- replies ---------------------------------------------------------------------
 
@@ -439,96 +324,33 @@ class MarlinProtocol:
             )
         self._events.append(Received(reply.text, reply.line_kind))
         if reply.kind is not ReplyKind.OK:
-            self._await_resend_ok = False
+            self._recovery.awaiting_ok = False
         self._HANDLERS.get(reply.kind, MarlinProtocol._on_information)(self, reply)
         self._previous = reply
 
     def _on_ok(self, reply: Reply) -> None:
-        self._progress()
-        self._consecutive_timeouts = 0
         self._advanced = self._advanced or reply.advanced
         if reply.event is not None:
             self._events.append(reply.event)
-        if self._await_resend_ok:
-            self._await_resend_ok = False
-            return
-        if reply.buffer_free is not None:
+        if reply.buffer_free is not None and not self._recovery.awaiting_ok:
             self._max_b = max(self._max_b, reply.buffer_free)
-        if self._live and (reply.number is None or not self._ack_through(reply.number)):
-            if not self._is_stale(reply.number):
-                self._acknowledge(self._live.popleft())
-        elif not self._live and self._timeout_recovery and self._m110_next():
-            self._ack_unsent_before(self._rewind_next + 1)  # T4: late, not lost
+        self._recovery.ok(reply.number)
 
     def _on_resend(self, reply: Reply) -> None:
-        self._progress()
-        self._await_resend_ok = True
-        n = reply.number
-        if self._need_m110 or n is None:
-            return  # nothing numbered since the last reset: not ours
-        if self._m110_next():
-            return  # F3: the M110 goes again anyway, this is a leftover
-        m110 = next((line.number for line in self._live if line.m110 is not None), None)
-        if m110 is not None:  # F3: about the M110 itself, whatever number it names
-            self._genuine_resend(m110, self._context(reply))
-            return
-        copies = self._ack_received(n) if self._timeout_recovery else 0
-        self._timeout_recovery = False
-        if copies:
-            self._recovery_n, self._dup_budget, self._repeats = n, copies - 1, 0
-        elif self._is_duplicate(n):
-            self._dup_budget -= 1
-            return
-        if n == self._next_n:
-            self._recovery_n, self._repeats = n, 0
-            return
-        elif not self._history.first <= n < self._next_n:
-            self._fail(
-                f"cannot resend line {n}: only lines {self._history.first} to "
-                f"{self._next_n - 1} were sent since the last M110 ({reply.text!r})"
-            )
-            return
-        self._genuine_resend(n, self._context(reply))
-
-    def _context(self, reply: Reply) -> str:
-        """The error line that came with a Resend, for ResendServed's message."""
-        previous = self._previous
-        resend_errors = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
-        return (
-            previous.text if previous and previous.kind in resend_errors else reply.text
-        )
-
-    def _is_duplicate(self, n: int) -> bool:
-        previous = self._previous.kind if self._previous else None
-        return (
-            n == self._recovery_n
-            and previous is ReplyKind.LINE_NUMBER_ERROR
-            and self._dup_budget > 0
-        )
+        self._recovery.resend(reply, self._previous)
 
     def _on_skip(self, reply: Reply) -> None:
-        self._progress()
-        self._await_resend_ok = True
-        if self._timeout_recovery and reply.number is not None:
-            self._ack_received(reply.number + 1)
-            self._timeout_recovery = False
-        elif self._dup_budget > 0:
-            self._dup_budget -= 1
+        self._recovery.skip(reply.number)
 
     def _on_wait(self, reply: Reply) -> None:
-        self._progress()
-        sent_at = self._live[0].sent_at if self._live else None
-        if sent_at is not None and self._clock - sent_at > 2 * self._rtt:
-            self._on_timeout(counted=False)
+        self._recovery.wait(printing=self.printing)
 
     def _on_busy(self, reply: Reply) -> None:
-        self._progress()
-        self._busy_seen = True
+        self._recovery.busy()
         self._on_information(reply)
 
     def _on_temperature(self, reply: Reply) -> None:
-        if self._live and self._live[0].word in _LONG_RUNNING:
-            self._progress()
+        self._recovery.temperature()
         self._on_information(reply)
 
     def _on_start(self, reply: Reply) -> None:
@@ -558,139 +380,6 @@ class MarlinProtocol:
         ReplyKind.LINE_NUMBER_ERROR: _on_resend_error,
         ReplyKind.CHECKSUM_ERROR: _on_resend_error,
     }
-
-    # -- acknowledgements, resends, timeouts -----------------------------------------
-
-    def _acknowledge(self, line: _Line) -> None:
-        if line.sent_at is not None:
-            self._rtt += 0.2 * (min(self._clock - line.sent_at, _RTT_CAP) - self._rtt)
-        self._busy_seen = self._timeout_recovery = False
-        if not line.internal:
-            self._events.append(Ack(line.tag))
-        recovery = self._recovery_n
-        if recovery is not None and line.number is not None and line.number >= recovery:
-            self._end_recovery()
-
-    def _is_stale(self, n: int | None) -> bool:
-        """ok N<n> for a line acked already (a second copy of an M110): ignore it."""
-        oldest = next(
-            (line.number for line in self._live if line.number is not None), None
-        )
-        return (
-            n is not None and oldest is not None and self._history.first <= n < oldest
-        )
-
-    def _ack_through(self, n: int) -> bool:
-        """ok N<n>: ack live lines through line n; False when n is not live."""
-        for index, line in enumerate(self._live):
-            if line.number == n:
-                for _ in range(index + 1):
-                    self._acknowledge(self._live.popleft())
-                return True
-        return False
-
-    def _ack_received(self, m: int) -> int:
-        """R6: the firmware holds every line before m; returns re-sent copies acked."""
-        last = -1
-        for index, line in enumerate(self._live):
-            if line.number is not None and line.number < m:
-                last = index
-        copies = 0
-        for _ in range(last + 1):
-            line = self._live.popleft()
-            copies += line.resend and line.sent_at is not None
-            self._acknowledge(line)
-        self._ack_unsent_before(m)
-        return copies
-
-    def _ack_unsent_before(self, m: int) -> None:
-        """Lines waiting to be re-sent that the firmware proved it has: skip, ack."""
-        while self._rewind_next < min(m, self._rewind_end):
-            old = self._rewind_tags.pop(self._rewind_next, None)
-            if old is not None and not old.internal:
-                self._events.append(Ack(old.tag))
-            self._rewind_next += 1
-
-    def _genuine_resend(self, n: int, message: str) -> None:
-        self._repeats = self._repeats + 1 if n == self._recovery_n else 1
-        if self._repeats > self._max_resends:
-            self._fail(
-                f"firmware keeps asking for line {n} ({self._repeats} times in a row): "
-                "check the cable, its shielding and the baud rate"
-            )
-            return
-        self.resends += 1
-        self._rewind(n, message)
-
-    def _rewind(self, n: int, message: str) -> None:
-        """R2: lines >= n die and go again from the history, after a drain delay."""
-        self._ack_unsent_before(n)
-        dead = [
-            line for line in self._live if line.number is not None and line.number >= n
-        ]
-        if dead:
-            self._live = deque(line for line in self._live if line not in dead)
-            self._outbox = deque(line for line in self._outbox if line not in dead)
-            written = sum(line.cost for line in dead if line.sent_at is not None)
-            if written:
-                self._dead_bytes += written
-                drain = self._rx_buffer * 10 / self._baud + self._rtt
-                self._drain_until = max(self._drain_until or 0.0, self._clock + drain)
-        tags = {k: v for k, v in self._rewind_tags.items() if k >= n}
-        tags.update((line.number, line) for line in dead if line.number is not None)
-        self._rewind_next, self._rewind_end, self._rewind_tags = n, self._next_n, tags
-        same = n == self._recovery_n
-        self._dup_budget = len(dead) + (self._dup_budget if same else 0)
-        self._recovery_n = n
-        self._events.append(ResendServed(n, message))
-
-    def _end_recovery(self) -> None:
-        self._recovery_n = None
-        self._dup_budget = self._repeats = 0
-
-    def _on_timeout(self, *, counted: bool) -> None:
-        oldest = self._live[0]
-        waited = self._clock - (oldest.sent_at or self._clock)
-        if counted:
-            self.timeouts += 1
-            self._consecutive_timeouts += 1
-            if self._consecutive_timeouts > self._max_timeouts:
-                self._fail(
-                    f"no answer to {oldest.wire!r} after {waited:.1f} s and "
-                    f"{self._consecutive_timeouts} timeouts: is the printer alive?"
-                )
-                return
-        self._progress()
-        self._busy_seen = False
-        if oldest.number is not None:
-            if oldest.number != self._recovery_n:
-                self._repeats = 0
-            self._rewind(
-                oldest.number, f"no answer to line {oldest.number} in {waited:.1f} s"
-            )
-            self._timeout_recovery = True
-        elif not self.printing:
-            self._acknowledge(self._live.popleft())
-        else:
-            self._fail(
-                f"no answer to {oldest.wire!r} after {waited:.1f} s; an unnumbered "
-                "line cannot be retried safely while printing"
-            )
-
-    def _ack_deadline(self) -> float | None:
-        if not self._live or self._live[0].sent_at is None:
-            return None
-        base = max(self._last_progress, self._live[0].sent_at)
-        return base + (self._busy_timeout if self._busy_seen else self._ack_timeout)
-
-    def _progress(self) -> None:
-        self._last_progress = self._clock
-
-    def _advance(self, now: float) -> None:
-        self._clock = now
-        if self._drain_until is not None and now >= self._drain_until:
-            self._drain_until = None
-            self._dead_bytes = 0
 
     def _fail(self, message: str) -> None:
         self._events.append(LinkFailed(message))

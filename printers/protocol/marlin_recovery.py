@@ -1,0 +1,274 @@
+"""MarlinProtocol's acknowledgements, resend requests and ack timeouts (R1-R6, T1-T4)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from printers.protocol.events import Ack, ResendServed
+from printers.protocol.marlin_responses import ReplyKind
+
+if TYPE_CHECKING:
+    from collections import deque
+    from collections.abc import Callable
+
+    from printers.protocol.events import Event
+    from printers.protocol.marlin_responses import Reply
+    from printers.protocol.marlin_window import Line, LineWindow
+
+__all__ = ["Recovery"]
+
+_LONG_RUNNING = frozenset(
+    {"M109", "M190", "M191", "M303", "G28", "G29", "M400", "G4", "M0", "M1", "M600"}
+)
+_RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
+_RTT_START = 0.05
+_RTT_CAP = 1.0
+
+
+class Recovery:
+    """Which live lines an ok, a Resend, a skip or a timeout settles (see marlin.py).
+
+    Acts on the protocol's LineWindow and event queue; a broken link goes to *fail*,
+    which must abandon everything (this recovery included, through reset()).
+    """
+
+    def __init__(
+        self,
+        window: LineWindow,
+        events: deque[Event],
+        fail: Callable[[str], None],
+        *,
+        max_resends: int,
+        max_timeouts: int,
+        ack_timeout: float,
+        busy_timeout: float,
+    ) -> None:
+        self._window, self._events, self._fail = window, events, fail
+        self._max_resends, self._max_timeouts = max_resends, max_timeouts
+        self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
+        #: Statistics: genuine resend requests served, ack timeouts.
+        self.resends = self.timeouts = 0
+        #: Round trip send -> ok (EWMA); sizes the drain delay and T2.
+        self.rtt = _RTT_START
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget any recovery in progress (abandon())."""
+        #: R1: the next ok answers a bad line, not a live one.
+        self.awaiting_ok = False
+        self._n: int | None = None
+        self._dup_budget = self._repeats = self._consecutive_timeouts = 0
+        self._after_timeout = self._busy_seen = False
+        self._last_progress = self._window.clock
+
+    # -- replies ---------------------------------------------------------------------
+
+    def ok(self, n: int | None) -> None:
+        """`ok` or `ok N<n>`: T3, R1, then acknowledge what it answers."""
+        self.progress()
+        self._consecutive_timeouts = 0
+        if self.awaiting_ok:
+            self.awaiting_ok = False
+            return
+        live = self._window.live
+        if live and (n is None or not self._ack_through(n)):
+            if not self._is_stale(n):
+                self._acknowledge(live.popleft())
+        elif not live and self._after_timeout and self._window.m110_next():
+            self._ack_unsent_before(self._window.rewind_next + 1)  # T4: late, not lost
+
+    def resend(self, reply: Reply, previous: Reply | None) -> None:
+        """`Resend: n` / `rs n` (F3, R2-R6); *previous* is the line before it."""
+        self.progress()
+        self.awaiting_ok = True
+        window, n = self._window, reply.number
+        if window.need_m110 or n is None:
+            return  # nothing numbered since the last reset: not ours
+        if window.m110_next():
+            return  # F3: the M110 goes again anyway, this is a leftover
+        m110 = next(
+            (line.number for line in window.live if line.m110 is not None), None
+        )
+        if m110 is not None:  # F3: about the M110 itself, whatever number it names
+            self._genuine_resend(m110, _context(reply, previous))
+            return
+        copies = self._ack_received(n) if self._after_timeout else 0
+        self._after_timeout = False
+        if copies:
+            self._n, self._dup_budget, self._repeats = n, copies - 1, 0
+        elif self._is_duplicate(n, previous):
+            self._dup_budget -= 1
+            return
+        if n == window.next_n:
+            self._n, self._repeats = n, 0
+            return
+        elif not window.history.first <= n < window.next_n:
+            self._fail(
+                f"cannot resend line {n}: only lines {window.history.first} to "
+                f"{window.next_n - 1} were sent since the last M110 ({reply.text!r})"
+            )
+            return
+        self._genuine_resend(n, _context(reply, previous))
+
+    def _is_duplicate(self, n: int, previous: Reply | None) -> bool:
+        kind = previous.kind if previous else None
+        return (
+            n == self._n
+            and kind is ReplyKind.LINE_NUMBER_ERROR
+            and self._dup_budget > 0
+        )
+
+    def skip(self, n: int | None) -> None:
+        """Repetier's `skip n`: a duplicate (R3), or after a timeout R6."""
+        self.progress()
+        self.awaiting_ok = True
+        if self._after_timeout and n is not None:
+            self._ack_received(n + 1)
+            self._after_timeout = False
+        elif self._dup_budget > 0:
+            self._dup_budget -= 1
+
+    def wait(self, *, printing: bool) -> None:
+        """`wait` (T2)."""
+        self.progress()
+        live = self._window.live
+        sent_at = live[0].sent_at if live else None
+        if sent_at is not None and self._window.clock - sent_at > 2 * self.rtt:
+            self.timeout(printing=printing, counted=False)
+
+    def busy(self) -> None:
+        """`busy:`: progress, and busy_timeout applies (T1)."""
+        self.progress()
+        self._busy_seen = True
+
+    def temperature(self) -> None:
+        """A temperature report is progress while a long command is oldest (T1)."""
+        live = self._window.live
+        if live and live[0].word in _LONG_RUNNING:
+            self.progress()
+
+    def progress(self) -> None:
+        self._last_progress = self._window.clock
+
+    # -- acknowledgements and resends ------------------------------------------------
+
+    def _acknowledge(self, line: Line) -> None:
+        if line.sent_at is not None:
+            elapsed = min(self._window.clock - line.sent_at, _RTT_CAP)
+            self.rtt += 0.2 * (elapsed - self.rtt)
+        self._busy_seen = self._after_timeout = False
+        if not line.internal:
+            self._events.append(Ack(line.tag))
+        recovery = self._n
+        if recovery is not None and line.number is not None and line.number >= recovery:
+            self._end_recovery()
+
+    def _is_stale(self, n: int | None) -> bool:
+        """ok N<n> for a line acked already (a second copy of an M110): ignore it."""
+        oldest = next(
+            (line.number for line in self._window.live if line.number is not None),
+            None,
+        )
+        first = self._window.history.first
+        return n is not None and oldest is not None and first <= n < oldest
+
+    def _ack_through(self, n: int) -> bool:
+        """ok N<n>: ack live lines through line n; False when n is not live."""
+        live = self._window.live
+        for index, line in enumerate(live):
+            if line.number == n:
+                for _ in range(index + 1):
+                    self._acknowledge(live.popleft())
+                return True
+        return False
+
+    def _ack_received(self, m: int) -> int:
+        """R6: the firmware holds every line before m; returns re-sent copies acked."""
+        live = self._window.live
+        last = -1
+        for index, line in enumerate(live):
+            if line.number is not None and line.number < m:
+                last = index
+        copies = 0
+        for _ in range(last + 1):
+            line = live.popleft()
+            copies += line.resend and line.sent_at is not None
+            self._acknowledge(line)
+        self._ack_unsent_before(m)
+        return copies
+
+    def _ack_unsent_before(self, m: int) -> None:
+        """Lines waiting to be re-sent that the firmware proved it has: skip, ack."""
+        for old in self._window.skip_unsent_before(m):
+            if not old.internal:
+                self._events.append(Ack(old.tag))
+
+    def _genuine_resend(self, n: int, message: str) -> None:
+        self._repeats = self._repeats + 1 if n == self._n else 1
+        if self._repeats > self._max_resends:
+            self._fail(
+                f"firmware keeps asking for line {n} ({self._repeats} times in a row): "
+                "check the cable, its shielding and the baud rate"
+            )
+            return
+        self.resends += 1
+        self._rewind(n, message)
+
+    def _rewind(self, n: int, message: str) -> None:
+        """R2: lines >= n die and go again from the history, after a drain delay."""
+        self._ack_unsent_before(n)
+        died = self._window.rewind(n, self.rtt)
+        self._dup_budget = died + (self._dup_budget if n == self._n else 0)
+        self._n = n
+        self._events.append(ResendServed(n, message))
+
+    def _end_recovery(self) -> None:
+        self._n = None
+        self._dup_budget = self._repeats = 0
+
+    # -- timeouts --------------------------------------------------------------------
+
+    def deadline(self) -> float | None:
+        """T1: when the oldest live line is overdue; None with nothing written."""
+        live = self._window.live
+        if not live or live[0].sent_at is None:
+            return None
+        base = max(self._last_progress, live[0].sent_at)
+        return base + (self._busy_timeout if self._busy_seen else self._ack_timeout)
+
+    def timeout(self, *, printing: bool, counted: bool = True) -> None:
+        """T1 (T2 when not *counted*): re-send, assume the ok lost, or give up."""
+        oldest = self._window.live[0]
+        waited = self._window.clock - (oldest.sent_at or self._window.clock)
+        if counted:
+            self.timeouts += 1
+            self._consecutive_timeouts += 1
+            if self._consecutive_timeouts > self._max_timeouts:
+                self._fail(
+                    f"no answer to {oldest.wire!r} after {waited:.1f} s and "
+                    f"{self._consecutive_timeouts} timeouts: is the printer alive?"
+                )
+                return
+        self.progress()
+        self._busy_seen = False
+        if oldest.number is not None:
+            if oldest.number != self._n:
+                self._repeats = 0
+            self._rewind(
+                oldest.number, f"no answer to line {oldest.number} in {waited:.1f} s"
+            )
+            self._after_timeout = True
+        elif not printing:
+            self._acknowledge(self._window.live.popleft())
+        else:
+            self._fail(
+                f"no answer to {oldest.wire!r} after {waited:.1f} s; an unnumbered "
+                "line cannot be retried safely while printing"
+            )
+
+
+def _context(reply: Reply, previous: Reply | None) -> str:
+    """The error line that came with a Resend, for ResendServed's message."""
+    if previous and previous.kind in _RESEND_ERRORS:
+        return previous.text
+    return reply.text
