@@ -16,8 +16,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-#: Ack bytes per line: "ok\n", or ADVANCED_OK's "ok N12345 P15 B3\n".
-ACK_BYTES = {"advanced_ok": 18}
 
 
 def main() -> int:
@@ -39,14 +37,68 @@ def main() -> int:
 
 
 def run_case(case: dict, data_dir: Path) -> dict:
-    """Start the simulator, queue the file, drive the worker until done or the cap."""
+    """Start the simulator, time its round trip, then drive the worker through the file."""
     from tests.conftest import start_sim
 
     sim = start_sim(data_dir, case["firmware"], *sim_args(case))
     try:
-        return measure(case, sim, data_dir)
+        text = job_text(case)
+        size = mean_wire_line(case, text)
+        rtt = round_trip(case, sim, size)
+        return {**measure(case, sim, data_dir, text), **bound(case, rtt, size)}
     finally:
         sim.stop()
+
+
+def job_text(case: dict) -> str:
+    from printers.sample_gcode import long_lines, segments
+
+    if case["file"] == "segments":
+        return segments(case["lines"], cnc=case["firmware"] == "grbl")
+    return long_lines(case["lines"])
+
+
+def mean_wire_line(case: dict, text: str) -> float:
+    """Mean bytes per line as the protocol writes them (framing, newline)."""
+    from printers.protocol.checksum import format_line
+    from printers.sample_gcode import commands_of
+
+    commands = commands_of(text)
+    if case["firmware"] == "grbl":
+        sizes = [len(c.replace(" ", "")) + 1 for c in commands]
+    else:
+        sizes = [len(format_line(n, c)) + 1 for n, c in enumerate(commands, 1)]
+    return sum(sizes) / len(sizes)
+
+
+def round_trip(case: dict, sim: object, size: float) -> float:
+    """Median ping-pong round trip (s) of a *size*-byte line, with a minimal host.
+
+    This is the link as it is: wire time, latency both ways, and the firmware's
+    turnaround (the simulator's timer precision included), which any host pays.
+    """
+    import statistics
+
+    from printers.transport import SerialTransport
+
+    n = max(4, round(size) - 1)
+    if case["firmware"] == "grbl":
+        line = ("G0X" + "1" * (n - 3)).encode()[:n] + b"\n"
+    else:
+        line = ("M117 " + "x" * n)[:n].encode() + b"\n"
+    port = SerialTransport.open(str(sim.link), case["baud"] or 115200)
+    times = []
+    try:
+        for _ in range(40):
+            start = time.perf_counter()
+            port.write(line)
+            reply = b""
+            while not reply.endswith(b"\n") or b"ok" not in reply:
+                reply += port.read(1.0)
+            times.append(time.perf_counter() - start)
+    finally:
+        port.close()
+    return statistics.median(times)
 
 
 def sim_args(case: dict) -> list[str]:
@@ -57,19 +109,13 @@ def sim_args(case: dict) -> list[str]:
     return args
 
 
-def measure(case: dict, sim: object, data_dir: Path) -> dict:
+def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
     from jobs.models import Job
     from jobs.services import enqueue_job
     from printers.models import Printer
-    from printers.sample_gcode import long_lines, segments
     from printers.worker.loop import PrinterWorker
 
     grbl = case["firmware"] == "grbl"
-    text = (
-        segments(case["lines"], cnc=grbl)
-        if case["file"] == "segments"
-        else long_lines(case["lines"])
-    )
     source = data_dir / "bench.gcode"
     source.write_text(text)
     flow = {"ping_pong": "ping_pong", "advanced_ok": "auto", "bytes": "buffered"}
@@ -98,7 +144,7 @@ def measure(case: dict, sim: object, data_dir: Path) -> dict:
         stream.acked if stream is not None else Job.objects.get(pk=job.pk).lines_acked
     )
     worker.stop()
-    return report(case, acked, sent[0], seconds, cpu, text)
+    return report(case, acked, sent[0], seconds, cpu)
 
 
 def _count_writes(worker: object) -> list[int]:
@@ -116,12 +162,9 @@ def _count_writes(worker: object) -> list[int]:
     return count
 
 
-def report(
-    case: dict, lines: int, sent: int, seconds: float, cpu: float, text: str
-) -> dict:
+def report(case: dict, lines: int, sent: int, seconds: float, cpu: float) -> dict:
     rate = sent / seconds if seconds else 0.0
     link = case["baud"] / 10 if case["baud"] else 0.0
-    mean_line = sent / lines if lines else 0.0
     return {
         **{k: case[k] for k in ("name", "firmware", "mode", "baud", "latency_ms")},
         "lines": lines,
@@ -129,22 +172,22 @@ def report(
         "lines_per_s": round(lines / seconds, 1) if seconds else 0.0,
         "bytes_per_s": round(rate, 1),
         "link_use": round(rate / link, 3) if link else None,
-        "bound": bound(case, mean_line) if link else None,
         "cpu_s_per_1k_lines": round(cpu / lines * 1000, 4) if lines else None,
+        "mean_line_bytes": round(sent / lines, 1) if lines else None,
     }
 
 
-def bound(case: dict, mean_line: float) -> float:
+def bound(case: dict, rtt: float, size: float) -> dict:
     """The best link use any host could reach: min(1, window / (baud/10 x round trip)).
 
-    Round trip = latency both ways + sending one line + sending its ack. The window
-    is the firmware's RX buffer (127 bytes) when windowed, one line for ping-pong.
+    The window is the firmware's RX buffer (127 bytes) when streaming windowed and
+    one line (*size* bytes) for ping-pong; the round trip is measured on the link
+    itself by round_trip().
     """
     link = case["baud"] / 10
-    ack = ACK_BYTES.get(case["mode"], 3)
-    rtt = 2 * case["latency_ms"] / 1000 + (mean_line + ack) / link
-    window = mean_line if case["mode"] == "ping_pong" else 127
-    return round(min(1.0, window / (link * rtt)), 3)
+    window = size if case["mode"] == "ping_pong" else 127
+    value = round(min(1.0, window / (link * rtt)), 3) if link else None
+    return {"bound": value, "rtt_ms": round(rtt * 1000, 3)}
 
 
 if __name__ == "__main__":

@@ -147,13 +147,15 @@ class PrinterWorker(Reactions):
         now = self.clock()
         self.protocol.receive_data(data, now)
         self.handle_protocol_events(now)
-        if now >= self.next_poll:
-            self._housekeeping(now)
         deadline = self.protocol.next_deadline()
         if deadline is not None and now >= deadline:
             self.protocol.handle_timeout(now)
             self.handle_protocol_events(now)
         self.pump(now)
+        # Database work comes after the window was refilled, while those bytes travel.
+        if now >= self.next_poll:
+            self._housekeeping(now)
+            self.pump(now)
         self.log.flush_if_due(now)
 
     def pump(self, now: float) -> None:

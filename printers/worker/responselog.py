@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from django.db import transaction
+from django.db import connections, transaction
 from django.db.models import Max
 from django.utils import timezone
 
@@ -58,16 +58,24 @@ class ResponseLog:
             self.prune()
 
     def flush(self) -> None:
-        """Write every buffered line in one transaction."""
+        """Write every buffered line in one transaction.
+
+        Plain executemany instead of bulk_create: no model instances, so a batch of a
+        few hundred lines costs a couple of milliseconds, not ten, of the loop's time.
+        """
         if not self._buffer:
             return
-        rows = [
-            ResponseLine(printer_id=self.printer_id, seq=seq, time=t, text=x, kind=k)
-            for seq, t, x, k in self._buffer
-        ]
+        table = ResponseLine._meta.db_table
+        connection = connections[ResponseLine.objects.db]
+        adapt = connection.ops.adapt_datetimefield_value
+        rows = [(self.printer_id, seq, adapt(t), x, k) for seq, t, x, k in self._buffer]
         self._buffer.clear()
-        with transaction.atomic():
-            ResponseLine.objects.bulk_create(rows, batch_size=500)
+        sql = (
+            f"INSERT INTO {connection.ops.quote_name(table)} "
+            "(printer_id, seq, time, text, kind) VALUES (%s, %s, %s, %s, %s)"
+        )
+        with transaction.atomic(), connection.cursor() as cursor:
+            cursor.executemany(sql, rows)
 
     def prune(self) -> int:
         """Delete lines older than the retention bound; returns how many went."""

@@ -43,6 +43,7 @@ def test_job_prints_then_printer_waits_for_a_clear_bed(marlin, make_job):
     for _ in range(20):
         worker.tick()
 
+    wait_for(lambda: len(job_lines(sim)) >= 53, 5, "the record")
     assert job_lines(sim) == commands_of(segments(50))
     assert state_of(second) == "queued"
     assert Printer.objects.get(pk=printer.pk).state == Printer.State.WAITSTART
@@ -89,6 +90,7 @@ def test_pause_and_resume_keep_every_line_once(marlin, make_job):
     request_action(printer, "resume", origin="test")
     wait_for(lambda: state_of(job) == "completed", 30, "the job", step=worker.tick)
 
+    wait_for(lambda: len(job_lines(sim)) >= len(commands_of(text)), 5, "the record")
     assert job_lines(sim) == commands_of(text)
 
 
