@@ -149,13 +149,16 @@ class Supervisor:
                 self.children[name] = Child(name, argv, restart_at=now)
 
     def stop(self) -> None:
-        """SIGTERM to all (workers first so they save), then wait with a grace period."""
-        order = sorted(
-            self.children.values(), key=lambda c: not c.name.startswith("worker")
-        )
-        for child in order:
-            child.terminate()
-        until = time.monotonic() + STOP_GRACE
-        for child in order:
-            child.wait(until)
+        """Workers first (they save progress and release their printers), then the rest.
+
+        Each group gets SIGTERM and a grace period; what is still alive is killed.
+        """
+        workers = [c for c in self.children.values() if c.name.startswith("worker:")]
+        others = [c for c in self.children.values() if c not in workers]
+        for group in (workers, others):
+            for child in group:
+                child.terminate()
+            until = time.monotonic() + STOP_GRACE
+            for child in group:
+                child.wait(until)
         self.children.clear()

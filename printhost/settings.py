@@ -14,6 +14,7 @@ BASE_DIR = Path(__file__).resolve().parent.parent
 DATA_DIR = Path(env_str("PRINTHOST_DATA_DIR", str(BASE_DIR / "var"))).resolve()
 #: Uploaded job files, one folder per printer (`/sd/` and `/fs/` in [ESP700]).
 JOB_STORAGE_DIR = Path(env_str("PRINTHOST_JOB_DIR", str(DATA_DIR / "jobs"))).resolve()
+DATA_DIR.mkdir(parents=True, exist_ok=True)
 
 DEBUG = env_bool("PRINTHOST_DEBUG", default=False)
 SECRET_KEY = env_str(
