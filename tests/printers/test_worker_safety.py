@@ -165,3 +165,26 @@ def test_job_with_a_line_over_the_limit_fails_and_the_next_job_prints(
     assert bad.state == Job.State.FAILED
     assert bad.message.startswith("line 2:")
     assert "G1 X1111" not in " ".join(sim.executed())
+
+
+def test_firmware_that_stops_answering_fails_the_job_with_a_clear_message(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory(
+        "marlin", "--baud", "250000", "--time-scale", "0", "--keepalive", "0"
+    )
+    printer = make_printer(port=str(sim.link), baud=250000, ack_timeout=0.5)
+    job = make_job(printer, segments(20000))
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: len(job_lines(sim)) > 300, 30, "300 lines", step=worker.tick)
+        assert sim.control("busy 60") == "ok"
+        wait_for(lambda: job_state(job).state == "failed", 20, "the job to fail",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+
+    message = job_state(job).message
+    assert "no answer" in message or "did not answer" in message, message
+    ran = job_lines(sim)
+    assert ran == commands_of(segments(20000))[: len(ran)]
