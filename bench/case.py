@@ -126,6 +126,9 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
     )  # fmt: skip
     job = enqueue_job(printer, source)
     worker = PrinterWorker(printer)
+    if case.get("log") is False:
+        # The logging-cost pair: the same case with the response log switched off.
+        worker.log.add = lambda text, kind: 0
     worker.start()
     sent = _count_writes(worker)
     started = cpu0 = None

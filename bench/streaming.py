@@ -112,12 +112,28 @@ def main(argv: list[str] | None = None) -> int:
         results.append(result)
         print(table([result]).splitlines()[-1], flush=True)
     if not options.only:
+        results += logging_cost(options.max_seconds)
         results += eight_at_once(options.max_seconds)
     print("\n" + table(results))
     verdicts = checks(results)
     print("\n" + "\n".join(verdicts))
     Path(options.out).write_text(json.dumps(results, indent=1))
     return 1 if any(v.startswith("FAIL") for v in verdicts) else 0
+
+
+def logging_cost(max_seconds: float) -> list[dict]:
+    """The same stream with the response log on and off: logging must not slow it."""
+    pair = []
+    for log in (True, False):
+        case = _case("segments", 20000, "marlin", "advanced_ok", 250000, 0, max_seconds)
+        case["name"] = f"log-{'on' if log else 'off'}/marlin-advanced_ok/250000/0ms"
+        case["log"] = log
+        pair.append({**run(case), "group": "logging"})
+    on, off = pair
+    if "error" not in on and "error" not in off:
+        print(f"logging cost: {on['lines_per_s']} lines/s with the log, "
+              f"{off['lines_per_s']} without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
+    return pair
 
 
 def eight_at_once(max_seconds: float) -> list[dict]:
