@@ -25,7 +25,7 @@ from printers.protocol.events import LineKind
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
 from printers.transport import SerialTransport, TransportClosed, TransportError
 from printers.worker import spool
-from printers.worker.lease import Lease, make_owner
+from printers.worker.lease import Lease, LeaseLost, make_owner
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
@@ -85,8 +85,6 @@ class PrinterWorker(Reactions):
     def start(self) -> None:
         """Claim the printer and settle what a previous worker left behind."""
         if not self.lease.claim():
-            from printers.worker.lease import LeaseLost
-
             raise LeaseLost(
                 f"printer {self.printer.slug} is driven by {self.lease.holder()}"
             )
