@@ -38,9 +38,9 @@ def main() -> int:
 
 def run_case(case: dict, data_dir: Path) -> dict:
     """Start the simulator, time its round trip, then drive the worker through the file."""
-    from tests.conftest import start_sim
+    from printers.simulator.process import start_simulator
 
-    sim = start_sim(data_dir, case["firmware"], *sim_args(case))
+    sim = start_simulator(data_dir, case["firmware"], *sim_args(case))
     try:
         text = job_text(case)
         size = mean_wire_line(case, text)

@@ -2,19 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import os
-import select
-import signal
-import socket
-import subprocess
-import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+
+from printers.simulator.process import SimulatorProcess, start_simulator
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -22,75 +16,12 @@ if TYPE_CHECKING:
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@dataclass
-class Sim:
-    """A firmware simulator process on a pty, with its record file and control socket."""
-
-    process: subprocess.Popen[bytes]
-    link: Path
-    record: Path
-    control_path: Path
-    tcp: str | None = None
-    argv: list[str] = field(default_factory=list)
-
-    def control(self, command: str, timeout: float = 5.0) -> str:
-        """Send one control command (reset, close, reopen, busy 5 ...) and read the answer."""
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-            sock.settimeout(timeout)
-            sock.connect(str(self.control_path))
-            sock.sendall(command.encode() + b"\n")
-            reply = b""
-            while not reply.endswith(b"\n"):
-                chunk = sock.recv(4096)
-                if not chunk:
-                    break
-                reply += chunk
-        return reply.decode().strip()
-
-    def executed(self) -> list[str]:
-        """Commands the firmware executed so far, in order."""
-        if not self.record.exists():
-            return []
-        return self.record.read_text().splitlines()
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-            try:
-                self.process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+Sim = SimulatorProcess
 
 
 def start_sim(directory: Path, firmware: str, *args: str, name: str = "") -> Sim:
     """Start `python -m printers.simulator` and wait (bounded) for its ready line."""
-    name = name or firmware
-    link = directory / f"{name}.tty"
-    record = directory / f"{name}.record"
-    control = directory / f"{name}.control"
-    argv = [
-        sys.executable, "-m", "printers.simulator", firmware,
-        "--link", str(link), "--record", str(record), "--control", str(control), *args,
-    ]  # fmt: skip
-    process = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE)
-    ready = _read_line(process, timeout=20)
-    info = json.loads(ready)
-    return Sim(process, link, record, control, info.get("tcp"), argv)
-
-
-def _read_line(process: subprocess.Popen[bytes], timeout: float) -> str:
-    assert process.stdout is not None
-    deadline = time.monotonic() + timeout
-    buffer = b""
-    while b"\n" not in buffer:
-        left = deadline - time.monotonic()
-        if left <= 0 or process.poll() is not None:
-            raise AssertionError(f"simulator did not get ready: {buffer!r}")
-        ready, _, _ = select.select([process.stdout], [], [], left)
-        if ready:
-            buffer += os.read(process.stdout.fileno(), 4096)
-    return buffer.split(b"\n", 1)[0].decode()
+    return start_simulator(directory, firmware, *args, name=name)
 
 
 @pytest.fixture

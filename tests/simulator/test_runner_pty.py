@@ -5,12 +5,8 @@ from __future__ import annotations
 import json
 import os
 import select
-import signal
 import socket
-import subprocess
-import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,6 +15,7 @@ import serial
 
 from printers.protocol.checksum import format_line
 from printers.simulator.cli import main
+from printers.simulator.process import SimulatorProcess, start_simulator
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -34,57 +31,11 @@ BOOT = [
 ]
 
 
-@dataclass
-class Running:
-    process: subprocess.Popen[bytes]
-    link: Path
-    record: Path
-    control_path: Path
-    info: dict[str, object]
-
-    def control(self, command: str) -> str:
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-            sock.settimeout(5.0)
-            sock.connect(str(self.control_path))
-            sock.sendall(command.encode() + b"\n")
-            reply = b""
-            while not reply.endswith(b"\n"):
-                chunk = sock.recv(4096)
-                if not chunk:
-                    break
-                reply += chunk
-        return reply.decode().strip()
-
-    def stop(self) -> int:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-            try:
-                self.process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-        return self.process.returncode
+Running = SimulatorProcess
 
 
 def _start(directory: Path, firmware: str, *args: str) -> Running:
-    link, record = directory / "printer.tty", directory / "printer.record"
-    control = directory / "printer.control"
-    argv = [
-        sys.executable, "-m", "printers.simulator", firmware, "--link", str(link),
-        "--record", str(record), "--control", str(control), *args,
-    ]  # fmt: skip
-    process = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE)
-    assert process.stdout is not None
-    deadline = time.monotonic() + 20
-    ready = b""
-    while not ready.endswith(b"\n"):
-        left = deadline - time.monotonic()
-        if left <= 0 or process.poll() is not None:
-            process.kill()
-            raise AssertionError(f"simulator did not get ready: {ready!r}")
-        if select.select([process.stdout], [], [], left)[0]:
-            ready += os.read(process.stdout.fileno(), 4096)
-    return Running(process, link, record, control, json.loads(ready))
+    return start_simulator(directory, firmware, *args, name="printer")
 
 
 @pytest.fixture
