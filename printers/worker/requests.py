@@ -27,6 +27,8 @@ RowState = QueuedCommand.State
 
 #: GRBL realtime bytes a client may type as a command.
 _GRBL_REALTIME = {"!", "~", "?", "\x18", "\x85", "\x84"}
+#: Marlin's emergency commands as GRBL realtime bytes: stop = feed hold + soft reset.
+_GRBL_EMERGENCY = {"M112": ["!", "\x18"], "M410": ["!"]}
 
 
 class RequestPoller:
@@ -84,8 +86,12 @@ class RequestPoller:
         if worker.transport is None:
             self._finish(row, "error: printer offline")
             return
-        full_stop = row.text.split()[0].upper() == "M112"
-        texts = ["!", "\x18"] if worker.printer.is_grbl and full_stop else [row.text]
+        word = row.text.split()[0].upper()
+        full_stop = word == "M112"
+        texts = _GRBL_EMERGENCY.get(word, []) if worker.printer.is_grbl else [row.text]
+        if not texts:
+            self._finish(row, f"error: {word} has no meaning on GRBL; use M112 or M410")
+            return
         for text in texts:
             worker.protocol.send_emergency(text, now)
         worker.pump(now)

@@ -188,3 +188,47 @@ def test_firmware_that_stops_answering_fails_the_job_with_a_clear_message(
     assert "no answer" in message or "did not answer" in message, message
     ran = job_lines(sim)
     assert ran == commands_of(segments(20000))[: len(ran)]
+
+
+def test_grbl_emergency_stop_is_feed_hold_and_soft_reset(
+    sim_factory, make_printer, make_job
+):
+    from jobs.services import send_command
+    from printers.models import QueuedCommand
+
+    sim = sim_factory("grbl", "--baud", "115200", "--time-scale", "1")
+    printer = make_printer(
+        port=str(sim.link), baud=115200, firmware="grbl", status_interval=0.2
+    )
+    job = make_job(printer, segments(2000, cnc=True))
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: len(sim.executed()) > 20, 30, "motion", step=worker.tick)
+        heating = send_command(printer, "M108", origin="tester")
+        emergency_stop(printer, origin="tester")
+        wait_for(
+            lambda: job_state(job).state == "aborted", 10, "abort", step=worker.tick
+        )
+
+        def banner() -> bool:
+            worker.log.flush()
+            lines = ResponseLine.objects.filter(
+                printer=printer, text__startswith="Grbl"
+            )
+            return lines.exists()
+
+        wait_for(banner, 10, "GRBL's banner after the soft reset", step=worker.tick)
+        worker.log.flush()
+    finally:
+        worker.stop()
+
+    texts = list(
+        ResponseLine.objects.filter(printer=printer)
+        .order_by("seq")
+        .values_list("text", flat=True)
+    )
+    hold = texts.index("<! feed hold>")
+    assert texts[hold + 1].startswith("<0x18"), texts[hold : hold + 3]
+    assert any(t.startswith("Grbl 1.1") for t in texts[hold:]), "no reset banner"
+    assert job_state(job).message == "emergency stop by tester"
+    assert QueuedCommand.objects.get(pk=heating.pk).reply.startswith("error: M108")
