@@ -22,10 +22,6 @@ class Job(models.Model):
         FAILED = "failed", "failed"
         INTERRUPTED = "interrupted", "interrupted"
 
-        @property
-        def finished(self) -> bool:
-            return self in FINISHED_STATES
-
     printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="jobs")
     name = models.CharField(max_length=255)
     file = models.CharField(max_length=500, help_text="path under the job storage")
