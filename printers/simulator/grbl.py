@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING
 
+from printers.simulator import _grbl_realtime as realtime
 from printers.simulator import _grbl_system as system
 from printers.simulator._grbl_gcode import GcodeState
 from printers.simulator._motion import Planner, distance
@@ -88,7 +89,7 @@ class GrblFirmware:
         for match in _REALTIME.finditer(data):
             if match.start() > pos:
                 self._reader.feed(data[pos : match.start()], now)
-            self._realtime(data[match.start()], now)
+            realtime.act(self, data[match.start()], now)
             pos = match.end()
         if pos < len(data):
             self._reader.feed(data[pos:] if pos else data, now)
@@ -182,55 +183,6 @@ class GrblFirmware:
             self.print_lines(_LOCKED_MESSAGE)
 
     # -- realtime bytes ------------------------------------------------------------
-
-    def _realtime(self, byte: int, now: float) -> None:
-        if byte == 0x18:
-            self.soft_reset(now)
-        elif byte == 0x3F:
-            self._status(now)
-        elif self._locked:
-            return
-        elif byte == 0x21:
-            self._feed_hold(now)
-        elif byte == 0x7E:
-            self._cycle_start(now)
-        elif byte == 0x85:
-            if self.state == "Jog":
-                self._stop_motion(now)
-                self.state = "Idle"
-        elif byte == 0x84:
-            self.planner.hold(now, held=True)
-            self.state = "Door:0"
-        else:
-            self._override(byte, now)
-
-    def _feed_hold(self, now: float) -> None:
-        self._update_state()
-        if self.state == "Jog":
-            self._stop_motion(now)
-            self.state = "Idle"
-        elif self.state in ("Idle", "Run"):
-            self.planner.hold(now, held=True)
-            self.state = "Hold:0"
-
-    def _cycle_start(self, now: float) -> None:
-        if self.state.startswith(("Hold", "Door")):
-            self.planner.hold(now, held=False)
-            self.state = "Idle" if self.planner.idle() else "Run"
-
-    def _override(self, byte: int, now: float) -> None:
-        change = system.OVERRIDES.get(byte)
-        if change is None:
-            return  # unknown extended byte: thrown away, as GRBL does
-        kind, value, relative = change
-        current = getattr(self, kind)
-        new = current + value if relative else value
-        low, high = (25, 100) if kind == "_rapid_ov" else (10, 200)
-        setattr(self, kind, min(max(new, low), high))
-        self.planner.set_speed(
-            now, feed=self._feed_ov / 100, rapid=self._rapid_ov / 100
-        )
-        self._reports = 1  # the next report carries Ov:
 
     def _stop_motion(self, now: float) -> None:
         """Flush the planner; the parser continues from where the machine stopped."""
@@ -344,7 +296,7 @@ class GrblFirmware:
 
     def _play_message(self, kind: str, now: float) -> None:
         if kind == "pause":
-            self._feed_hold(now)
+            realtime.feed_hold(self, now)
         elif kind == "end":
             self.print_lines("[MSG:Pgm End]")
         elif kind == "probe":
