@@ -95,3 +95,16 @@ def make_job(storage: Path, tmp_path: Path) -> Callable[..., object]:
         return enqueue_job(printer, source, name=name, origin="test")
 
     return factory
+
+
+#: Commands the worker sends by itself (hello, temperatures), not part of any job.
+HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
+
+
+def job_lines(sim: Sim) -> list[str]:
+    """Job commands the firmware ran (a reset's torn line fragment is not a command)."""
+    return [
+        c
+        for c in sim.executed()
+        if c.startswith(("G", "M")) and not c.startswith(HOST_COMMANDS)
+    ]

@@ -113,8 +113,7 @@ class PrinterWorker(Reactions):
         """Save everything, close the port, give the printer back."""
         stream = self.host.current_stream
         if stream is not None and stream.ref is not None:
-            self.host.fail_all("the worker was stopped mid-job", outcome="interrupted")
-            self.handle_host_events(self.clock())
+            self.stop_streams("the worker was stopped mid-job", outcome="interrupted")
         self._close()
         self.status.set_state(Printer.State.OFFLINE, "worker stopped")
         self.status.save_if_due(self.clock(), force=True)
@@ -123,9 +122,7 @@ class PrinterWorker(Reactions):
 
     def crash(self, message: str) -> None:
         """Klipper's instinct: on a bug, stop streaming and record why."""
-        self.host.fail_all(message)
-        self.protocol.abandon()
-        self.handle_host_events(self.clock())
+        self.stop_streams(message)
         self.halted = message
         self.update_state()
 
@@ -238,22 +235,27 @@ class PrinterWorker(Reactions):
 
     def port_lost(self, message: str) -> None:
         """The port went away: stop the job (never continue blindly) and reconnect."""
-        now = self.clock()
-        self.host.fail_all(
+        self.stop_streams(
             f"the port went away mid-job ({message}); the job was stopped",
             outcome="interrupted",
         )
-        self.protocol.abandon()
-        self.handle_host_events(now)
         self._close()
-        self._retry_later(now, f"port lost: {message}")
+        self._retry_later(self.clock(), f"port lost: {message}")
 
     def disconnect(self, message: str) -> None:
-        self.host.fail_all(message, outcome="interrupted")
-        self.protocol.abandon()
-        self.handle_host_events(self.clock())
+        self.stop_streams(message, outcome="interrupted")
         self._close()
         self.update_state()
+
+    def stop_streams(
+        self, message: str, *, outcome: str = "failed", note: bool = False
+    ) -> None:
+        """End every stream with *message*, forget what is in flight, record outcomes."""
+        self.host.fail_all(message, outcome=outcome)
+        self.protocol.abandon()
+        self.handle_host_events(self.clock())
+        if note:
+            self.note(message)
 
     def _retry_later(self, now: float, message: str) -> None:
         self.next_connect = now + self.backoff

@@ -59,13 +59,13 @@ class Reactions:
             case ev.FirmwareReset(banner=banner):
                 self._on_reset(banner, now)
             case ev.FirmwareHalted(message=message):
-                self._stop_everything(f"the firmware halted: {message}")
+                self.stop_streams(f"the firmware halted: {message}", note=True)
                 self.halted = f"{message} (reset the printer, then reconnect)"
             case ev.FirmwareError(message=message) | ev.Alarm(message=message):
                 if self.host.fail_stream(f"the firmware reported an error: {message}"):
                     self.stop_motion_after_error()
             case ev.LinkFailed(message=message):
-                self._stop_everything(message)
+                self.stop_streams(message, note=True)
                 self._close()
                 self._retry_later(now, message)
         self.update_state()
@@ -90,22 +90,15 @@ class Reactions:
 
     def _on_reset(self: PrinterWorker, banner: str, now: float) -> None:
         if self.host.current_stream is not None:
-            self._stop_everything(
+            self.stop_streams(
                 f"the firmware reset ({banner!r}) mid-job: the printer lost its state, "
-                "so the job was stopped, not continued"
+                "so the job was stopped, not continued",
+                note=True,
             )
         else:
-            self.host.fail_all(f"the firmware reset ({banner!r})")
-            self.protocol.abandon()
-            self.handle_host_events(now)
+            self.stop_streams(f"the firmware reset ({banner!r})")
         self.halted = ""
         self.hello(now)
-
-    def _stop_everything(self: PrinterWorker, message: str) -> None:
-        self.host.fail_all(message)
-        self.protocol.abandon()
-        self.handle_host_events(self.clock())
-        self.note(message)
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
         """GRBL executes what it buffered even after an error: hold the feed."""

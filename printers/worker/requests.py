@@ -97,10 +97,7 @@ class RequestPoller:
         worker.pump(now)
         if full_stop:
             who = f" by {row.origin}" if row.origin else ""
-            worker.host.fail_all(f"emergency stop{who}", outcome="aborted")
-            worker.protocol.abandon()
-            worker.handle_host_events(now)
-            worker.note(f"emergency stop{who}")
+            worker.stop_streams(f"emergency stop{who}", outcome="aborted", note=True)
         self._finish(row, "ok")
 
     def _action(self, action: str, origin: str) -> str:

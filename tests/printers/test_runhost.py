@@ -13,11 +13,9 @@ from pathlib import Path
 import pytest
 
 from printers.sample_gcode import commands_of, segments
-from tests.conftest import ROOT, wait_for
+from tests.conftest import HOST_COMMANDS, ROOT, wait_for
 
 pytestmark = pytest.mark.slow
-
-HOST_COMMANDS = ("M110", "M115", "M105", "M155")
 
 
 class Host:

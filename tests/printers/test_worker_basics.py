@@ -9,15 +9,9 @@ from jobs.services import request_action, send_command
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker
-from tests.conftest import wait_for
+from tests.conftest import job_lines, wait_for
 
 pytestmark = pytest.mark.django_db
-
-HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
-
-
-def job_lines(sim) -> list[str]:
-    return [c for c in sim.executed() if not c.startswith(HOST_COMMANDS)]
 
 
 def state_of(job: Job) -> str:

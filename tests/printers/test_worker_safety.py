@@ -9,20 +9,9 @@ from jobs.services import emergency_stop
 from printers.models import Printer, ResponseLine
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker
-from tests.conftest import wait_for
+from tests.conftest import job_lines, wait_for
 
 pytestmark = pytest.mark.django_db
-
-HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
-
-
-def job_lines(sim) -> list[str]:
-    """Job commands the firmware ran (a reset's torn line fragment is not a command)."""
-    return [
-        c
-        for c in sim.executed()
-        if c.startswith(("G", "M")) and not c.startswith(HOST_COMMANDS)
-    ]
 
 
 def job_state(job: Job) -> Job:

@@ -7,16 +7,9 @@ import pytest
 from jobs.models import Job
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker
-from tests.conftest import wait_for
+from tests.conftest import job_lines, wait_for
 
 pytestmark = [pytest.mark.django_db, pytest.mark.slow]
-
-#: Commands the worker itself sends (hello, temperatures), not part of the job.
-HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
-
-
-def job_commands(executed: list[str]) -> list[str]:
-    return [c for c in executed if not c.startswith(HOST_COMMANDS)]
 
 
 def stream_job(worker: PrinterWorker, job: Job, timeout: float) -> Job:
@@ -50,8 +43,8 @@ def test_marlin_job_survives_corrupted_lines_without_loss_or_repeat(
 
     assert job.state == Job.State.COMPLETED, job.message
     assert job.lines_acked == job.line_count == 20003
-    wait_for(lambda: len(job_commands(sim.executed())) >= 20003, 10, "the record")
-    assert job_commands(sim.executed()) == commands_of(text)
+    wait_for(lambda: len(job_lines(sim)) >= 20003, 10, "the record")
+    assert job_lines(sim) == commands_of(text)
     assert worker.protocol.resends > 0
 
 
@@ -67,6 +60,6 @@ def test_grbl_job_streams_every_line_once_in_order(sim_factory, make_printer, ma
     job = stream_job(worker, job, timeout=600)
 
     assert job.state == Job.State.COMPLETED, job.message
-    wait_for(lambda: len(job_commands(sim.executed())) >= 20004, 10, "the record")
-    executed = [c.replace(" ", "") for c in job_commands(sim.executed())]
+    wait_for(lambda: len(job_lines(sim)) >= 20004, 10, "the record")
+    executed = [c.replace(" ", "") for c in job_lines(sim)]
     assert executed == [c.replace(" ", "") for c in commands_of(text)]
