@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 from django.contrib import admin, messages
 
 from jobs.models import ACTIVE_STATES, Job
-from jobs.services import request_action
+from jobs.services import delete_job_file, request_action
 
 if TYPE_CHECKING:
     from django.db.models import QuerySet
@@ -70,7 +70,7 @@ class JobAdmin(admin.ModelAdmin):
     def delete_with_files(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         busy = queryset.filter(state__in=ACTIVE_STATES).count()
         for job in queryset.exclude(state__in=ACTIVE_STATES):
-            job.path.unlink(missing_ok=True)
+            delete_job_file(job)
             job.delete()
         if busy:
             messages.warning(request, f"{busy} running job(s) kept: abort them first")

@@ -14,6 +14,7 @@ class Job(models.Model):
     """A file on disk waiting, streaming or done on one printer (the stream queue)."""
 
     class State(models.TextChoices):
+        STORED = "stored", "stored (not queued)"
         QUEUED = "queued", "queued"
         PRINTING = "printing", "printing"
         PAUSED = "paused", "paused"
@@ -30,6 +31,13 @@ class Job(models.Model):
     sha256 = models.CharField(max_length=64, blank=True)
     position = models.BigIntegerField(default=0, help_text="queue order, lowest first")
     origin = models.CharField(max_length=100, blank=True)
+    uploaded_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL,
+        on_delete=models.SET_NULL,
+        null=True,
+        blank=True,
+        related_name="+",
+    )
     state = models.CharField(max_length=16, choices=State.choices, default=State.QUEUED)
     message = models.TextField(blank=True)
     lines_sent = models.BigIntegerField(default=0)

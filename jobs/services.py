@@ -9,6 +9,7 @@ import re
 import shutil
 import uuid
 from pathlib import Path
+from typing import TYPE_CHECKING, BinaryIO
 
 from django.conf import settings
 from django.db import transaction
@@ -18,6 +19,10 @@ from jobs.models import Job
 from printers.driver import LinkConfig
 from printers.models import Printer, QueuedCommand
 from printers.worker.spool import next_position
+
+if TYPE_CHECKING:
+    from django.contrib.auth.models import AbstractBaseUser
+    from django.core.files.uploadedfile import UploadedFile
 
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._ -]+")
 #: Commands that must skip every queue (Marlin's emergency parser set).
@@ -40,13 +45,24 @@ def safe_name(name: str) -> str:
 
 
 def enqueue_job(
-    printer: Printer, source: Path, *, name: str = "", origin: str = ""
+    printer: Printer,
+    source: Path,
+    *,
+    name: str = "",
+    origin: str = "",
+    user: AbstractBaseUser | None = None,
+    queue: bool = True,
+    move: bool = False,
 ) -> Job:
     """Check *source*, copy it into the printer's storage and queue a job for it.
 
     1. Inspect the file (binary, empty, too-long lines -> BadGcode) before storing.
     2. Copy it beside the other jobs under a unique name (never overwrite one).
-    3. Create the job at the end of the printer's queue.
+    3. Create the job at the end of the printer's queue (or only store it when
+       *queue* is false: OctoPrint's upload without print, Repetier's models).
+
+    *move* renames *source* into the storage (an upload's temporary file) instead of
+    copying it, so a large upload is written to disk once.
     """
     name = safe_name(name or source.name)
     limit = LinkConfig.from_printer(printer).command_limit
@@ -58,8 +74,101 @@ def enqueue_job(
         )
     facts = inspect_file(source, max_command_length=limit)
     target = storage_dir(printer) / f"{uuid.uuid4().hex[:8]}-{name}"
-    shutil.copyfile(source, target)
-    return _create_job(printer, target, name, facts, origin)
+    if move:
+        shutil.move(source, target)
+    else:
+        shutil.copyfile(source, target)
+    state = Job.State.QUEUED if queue else Job.State.STORED
+    return _create_job(printer, target, name, facts, origin, user=user, state=state)
+
+
+def enqueue_upload(
+    printer: Printer,
+    upload: UploadedFile | BinaryIO,
+    *,
+    name: str,
+    origin: str = "",
+    user: AbstractBaseUser | None = None,
+    queue: bool = True,
+    sha256: str = "",
+) -> Job:
+    """Store an uploaded file (streamed in chunks, never whole in memory) as a job.
+
+    A Django upload already on disk (TemporaryUploadedFile) is moved, not copied.
+    *sha256*, when given, must match the stored file (Moonraker's `checksum`).
+    """
+    name = safe_name(name)
+    staging = storage_dir(printer) / f".upload-{uuid.uuid4().hex}"
+    temp_path = getattr(upload, "temporary_file_path", None)
+    try:
+        if temp_path is not None:
+            # Move before closing: closing a TemporaryUploadedFile deletes it.
+            shutil.move(temp_path(), staging)
+            upload.close()  # type: ignore[union-attr]
+        else:
+            with staging.open("wb") as out:
+                chunks = getattr(upload, "chunks", None)
+                if chunks is not None:
+                    for chunk in chunks():
+                        out.write(chunk)
+                else:
+                    shutil.copyfileobj(upload, out, 1024 * 1024)
+        job = enqueue_job(
+            printer,
+            staging,
+            name=name,
+            origin=origin,
+            user=user,
+            queue=queue,
+            move=True,
+        )
+    finally:
+        if staging.exists():
+            staging.unlink()
+    if sha256 and sha256.lower() != job.sha256:
+        delete_job_file(job)
+        job.delete()
+        raise ChecksumMismatch(
+            f"{name}: SHA-256 {job.sha256} does not match the given {sha256.lower()}"
+        )
+    return job
+
+
+class ChecksumMismatch(BadGcode):
+    """The stored file's SHA-256 is not the one the client said it sent."""
+
+
+def delete_job_file(job: Job) -> None:
+    """Remove a job's file unless another job still uses it (reprints share files)."""
+    others = Job.objects.filter(file=job.file).exclude(pk=job.pk).exists()
+    if not others:
+        job.path.unlink(missing_ok=True)
+
+
+def reprint(job: Job, *, origin: str = "", user: AbstractBaseUser | None = None) -> Job:
+    """Queue the same stored file again as a new job at the end of the queue."""
+    if not job.path.is_file():
+        raise BadGcode(f"{job.name}: the stored file is gone")
+    return Job.objects.create(
+        printer=job.printer,
+        name=job.name,
+        file=job.file,
+        size_bytes=job.size_bytes,
+        line_count=job.line_count,
+        sha256=job.sha256,
+        position=next_position(job.printer_id),
+        origin=origin,
+        uploaded_by=user,
+    )
+
+
+def queue_job(job: Job) -> bool:
+    """Put a stored job at the end of its printer's queue; False if it was not stored."""
+    return bool(
+        Job.objects.filter(pk=job.pk, state=Job.State.STORED).update(
+            state=Job.State.QUEUED, position=next_position(job.printer_id)
+        )
+    )
 
 
 def queue_stored_file(printer: Printer, stored_name: str, *, origin: str = "") -> Job:
@@ -71,11 +180,20 @@ def queue_stored_file(printer: Printer, stored_name: str, *, origin: str = "") -
 
 
 def _create_job(
-    printer: Printer, path: Path, name: str, facts: FileFacts, origin: str
+    printer: Printer,
+    path: Path,
+    name: str,
+    facts: FileFacts,
+    origin: str,
+    *,
+    user: AbstractBaseUser | None = None,
+    state: str = Job.State.QUEUED,
 ) -> Job:
     relative = path.relative_to(Path(settings.JOB_STORAGE_DIR))
     with transaction.atomic():
         return Job.objects.create(
+            state=state,
+            uploaded_by=user,
             printer=printer,
             name=name,
             file=str(relative),

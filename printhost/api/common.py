@@ -1,0 +1,131 @@
+"""What every API module shares: who is calling, the `{error, data}` envelope, errors.
+
+Every answer of the API is UTF-8 JSON. Success and failure both use Repetier-Server's
+envelope, `{"error": "<empty or message>", "data": ...}`, with a real HTTP status on
+failure (401 no or bad credentials, 403 not allowed, 404 unknown, 400/409/413/422 bad
+input), so a slicer that only reads the status and a host that reads `error` both
+understand it. Dialect modules (OctoPrint, Moonraker) answer in their own shapes.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from django.http import HttpRequest, HttpResponse, JsonResponse
+from ninja.errors import AuthenticationError, HttpError, ValidationError
+from ninja.security.base import AuthBase
+from ninja.utils import check_csrf
+
+from jobs.gcode import BadGcode
+from jobs.services import ChecksumMismatch
+from printers.models import Printer
+from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_request
+
+log = logging.getLogger("printhost.api")
+
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+
+def envelope(data: Any = None, error: str = "", *, status: int = 200) -> JsonResponse:
+    """Repetier-Server's answer: `{"error": "...", "data": ...}`."""
+    return JsonResponse({"error": error, "data": data}, status=status, safe=False)
+
+
+class CallerAuth(AuthBase):
+    """API key (X-Api-Key, Bearer, ?apikey=) or a logged-in session with CSRF.
+
+    Returns the `Caller`, which views read as `request.auth`. A key that matches
+    nobody is a 401 even if a session cookie is present.
+    """
+
+    openapi_type = "apiKey"
+    openapi_in = "header"
+    openapi_name = "X-Api-Key"
+
+    def __call__(self, request: HttpRequest) -> Caller | None:
+        caller = caller_from_request(request)
+        if not caller.authenticated:
+            return None
+        # Browser forms: the session cookie alone must not be enough.
+        unsafe = caller.key is None and request.method not in SAFE_METHODS
+        if unsafe and check_csrf(request) is not None:
+            raise HttpError(403, "CSRF check failed: reload the page and try again")
+        return caller
+
+
+def caller_of(request: HttpRequest) -> Caller:
+    """The authenticated caller of a view behind `CallerAuth`."""
+    caller = getattr(request, "auth", None)
+    if not isinstance(caller, Caller):
+        caller = caller_from_request(request)
+        if not caller.authenticated:
+            raise NotAuthenticated("log in or give an API key")
+    return caller
+
+
+def printer_for(request: HttpRequest, slug: str, role: int) -> Printer:
+    """The printer *slug*, if the caller holds *role* on it (404 / 401 / 403)."""
+    caller = caller_of(request)
+    printer = Printer.objects.filter(slug=slug).first()
+    if printer is None:
+        raise HttpError(404, f"Unknown printer {slug!r}")
+    caller.require(printer, role)
+    return printer
+
+
+def install_error_handlers(api: Any) -> None:
+    """Map every error the API can raise to a status and a clear message."""
+
+    def reply(request: HttpRequest, message: str, status: int) -> HttpResponse:
+        return envelope(None, message, status=status)
+
+    @api.exception_handler(AuthenticationError)
+    def _unauthenticated(request: HttpRequest, exc: Exception) -> HttpResponse:
+        response = reply(
+            request, "authentication required: log in or give an API key", 401
+        )
+        response["WWW-Authenticate"] = 'X-Api-Key realm="printhost"'
+        return response
+
+    @api.exception_handler(NotAuthenticated)
+    def _not_authenticated(request: HttpRequest, exc: Exception) -> HttpResponse:
+        response = reply(request, str(exc), 401)
+        response["WWW-Authenticate"] = 'X-Api-Key realm="printhost"'
+        return response
+
+    @api.exception_handler(Forbidden)
+    def _forbidden(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, str(exc) or "not allowed", 403)
+
+    @api.exception_handler(HttpError)
+    def _http_error(request: HttpRequest, exc: HttpError) -> HttpResponse:
+        return reply(request, str(exc), exc.status_code)
+
+    @api.exception_handler(ValidationError)
+    def _invalid(request: HttpRequest, exc: ValidationError) -> HttpResponse:
+        parts = []
+        for error in exc.errors:
+            where = ".".join(str(p) for p in error.get("loc", ()) if p not in ("body",))
+            parts.append(
+                f"{where}: {error.get('msg', 'invalid')}"
+                if where
+                else error.get("msg", "")
+            )
+        return reply(request, "bad request: " + "; ".join(parts), 422)
+
+    @api.exception_handler(ChecksumMismatch)
+    def _checksum(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, str(exc), 422)
+
+    @api.exception_handler(BadGcode)
+    def _bad_gcode(request: HttpRequest, exc: Exception) -> HttpResponse:
+        status = 413 if "over the limit" in str(exc) else 400
+        return reply(request, str(exc), status)
+
+    @api.exception_handler(Exception)
+    def _unexpected(request: HttpRequest, exc: Exception) -> HttpResponse:
+        log.exception("unexpected error in %s %s", request.method, request.path)
+        return reply(
+            request, f"internal error: {type(exc).__name__}; see the server log", 500
+        )
