@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ninja import NinjaAPI
 
-from printhost.api.common import CallerAuth, install_error_handlers
+from printhost.api.common import CallerAuth, docs_access, install_error_handlers
 
 api = NinjaAPI(
     title="printhost",
@@ -22,6 +22,7 @@ api = NinjaAPI(
     auth=CallerAuth(),
     openapi_url="/api/schema/",
     docs_url="/api/docs/",
+    docs_decorator=docs_access,
     urls_namespace="api",
 )
 install_error_handlers(api)
@@ -37,5 +38,14 @@ def _register() -> None:
 
 
 #: Modules with a `router`; add a module here to publish its endpoints.
-ROUTER_MODULES: list[str] = []
+#: Order matters where paths overlap: Moonraker's `/printer/print/...` comes before
+#: the seed's `/printer/<call>/<slug>`.
+ROUTER_MODULES: list[str] = [
+    "moonraker",
+    "octoprint",
+    "appkeys",
+    "keys",
+    "printer",
+    "uploads",
+]
 _register()

@@ -129,3 +129,26 @@ def install_error_handlers(api: Any) -> None:
         return reply(
             request, f"internal error: {type(exc).__name__}; see the server log", 500
         )
+
+
+def docs_access(view: Any) -> Any:
+    """The schema and docs page need a session or an API key, like everything else."""
+    from functools import wraps
+
+    @wraps(view)
+    def wrapped(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponse:
+        try:
+            caller = caller_from_request(request)
+        except NotAuthenticated as error:
+            return envelope(None, str(error), status=401)
+        if not caller.authenticated:
+            from django.contrib.auth.views import redirect_to_login
+
+            if "text/html" in request.headers.get("Accept", ""):
+                return redirect_to_login(request.get_full_path())
+            return envelope(
+                None, "authentication required: log in or give an API key", 401
+            )
+        return view(request, *args, **kwargs)
+
+    return wrapped

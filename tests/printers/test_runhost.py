@@ -4,69 +4,17 @@ from __future__ import annotations
 
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 import pytest
 
 from printers.sample_gcode import commands_of, segments
 from tests.conftest import HOST_COMMANDS, ROOT, wait_for
+from tests.hosts import Host, postgres_url
 
 pytestmark = pytest.mark.slow
-
-
-class Host:
-    """A printhost installation in a folder: its own database, jobs and simulators."""
-
-    def __init__(self, folder: Path, database_url: str = "") -> None:
-        self.folder = folder
-        self.env = {**os.environ, "PRINTHOST_DATA_DIR": str(folder)}
-        self.env.pop("DATABASE_URL", None)
-        if database_url:
-            self.env["DATABASE_URL"] = database_url
-        self.database_url = database_url
-
-    def manage(
-        self, *args: str, check: bool = True
-    ) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "manage.py", *args], cwd=ROOT, env=self.env,
-            capture_output=True, text=True, check=check, timeout=120,
-        )  # fmt: skip
-
-    def shell(self, code: str) -> str:
-        return self.manage("shell", "-c", code).stdout.strip()
-
-    def query(self, sql: str) -> list[tuple]:
-        if self.database_url:
-            import psycopg
-
-            with psycopg.connect(self.database_url) as connection:
-                return connection.execute(sql).fetchall()
-        with sqlite3.connect(
-            self.folder / "printhost.sqlite3", timeout=20
-        ) as connection:
-            return connection.execute(sql).fetchall()
-
-
-def postgres_url() -> str:
-    """A fresh database on the local PostgreSQL, or skip (fail in CI) if there is none."""
-    psycopg = pytest.importorskip("psycopg")
-    name = f"printhost_test_{uuid.uuid4().hex[:8]}"
-    try:
-        with psycopg.connect(
-            "postgresql://postgres@127.0.0.1:5432/postgres", autocommit=True,
-            connect_timeout=3,
-        ) as connection:  # fmt: skip
-            connection.execute(f"CREATE DATABASE {name}")
-    except psycopg.OperationalError as error:
-        if os.environ.get("PRINTHOST_REQUIRE_SERVICES") == "1":
-            raise
-        pytest.skip(f"PostgreSQL is not reachable on 127.0.0.1:5432 ({error})")
-    return f"postgresql://postgres@127.0.0.1:5432/{name}"
 
 
 @pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.services)])

@@ -1,0 +1,7 @@
+"""(being written) router for the moonraker endpoints."""
+
+from __future__ import annotations
+
+from ninja import Router
+
+router = Router()

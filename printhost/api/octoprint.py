@@ -1,0 +1,7 @@
+"""(being written) router for the octoprint endpoints."""
+
+from __future__ import annotations
+
+from ninja import Router
+
+router = Router()

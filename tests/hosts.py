@@ -1,0 +1,187 @@
+"""A printhost installation in a folder, and runhost serving it, for end-to-end tests.
+
+Real processes only: `manage.py` subprocesses for setup, `runhost` for daphne, the
+simulators and the workers. Tests talk to it over real HTTP / websocket / TCP.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT, wait_for
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def services_required() -> bool:
+    return os.environ.get("PRINTHOST_REQUIRE_SERVICES") == "1"
+
+
+def postgres_url() -> str:
+    """A fresh database on the local PostgreSQL, or skip (fail in CI) if there is none."""
+    psycopg = pytest.importorskip("psycopg")
+    name = f"printhost_test_{uuid.uuid4().hex[:8]}"
+    try:
+        with psycopg.connect(
+            "postgresql://postgres@127.0.0.1:5432/postgres", autocommit=True,
+            connect_timeout=3,
+        ) as connection:  # fmt: skip
+            connection.execute(f"CREATE DATABASE {name}")
+    except psycopg.OperationalError as error:
+        if services_required():
+            raise
+        pytest.skip(f"PostgreSQL is not reachable on 127.0.0.1:5432 ({error})")
+    return f"postgresql://postgres@127.0.0.1:5432/{name}"
+
+
+def redis_url(db: int = 0) -> str:
+    """The local Redis, or skip (fail in CI) if there is none."""
+    redis = pytest.importorskip("redis")
+    url = f"redis://127.0.0.1:6379/{db}"
+    try:
+        redis.Redis.from_url(url, socket_connect_timeout=3).ping()
+    except redis.RedisError as error:
+        if services_required():
+            raise
+        pytest.skip(f"Redis is not reachable on 127.0.0.1:6379 ({error})")
+    return url
+
+
+class Host:
+    """A printhost installation in a folder: its own database, jobs and simulators."""
+
+    def __init__(self, folder: Path, database_url: str = "", redis: str = "") -> None:
+        self.folder = folder
+        self.env = {**os.environ, "PRINTHOST_DATA_DIR": str(folder)}
+        for name in ("DATABASE_URL", "REDIS_URL"):
+            self.env.pop(name, None)
+        if database_url:
+            self.env["DATABASE_URL"] = database_url
+        if redis:
+            self.env["REDIS_URL"] = redis
+        self.database_url = database_url
+        self.port = 0
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def manage(
+        self, *args: str, check: bool = True
+    ) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "manage.py", *args], cwd=ROOT, env=self.env,
+            capture_output=True, text=True, check=check, timeout=120,
+        )  # fmt: skip
+
+    def shell(self, code: str) -> str:
+        return self.manage("shell", "-c", code).stdout.strip()
+
+    def query(self, sql: str) -> list[tuple]:
+        if self.database_url:
+            import psycopg
+
+            with psycopg.connect(self.database_url) as connection:
+                return connection.execute(sql).fetchall()
+        with sqlite3.connect(
+            self.folder / "printhost.sqlite3", timeout=20
+        ) as connection:
+            return connection.execute(sql).fetchall()
+
+    def add_simulated_printer(
+        self, slug: str, firmware: str = "marlin", *, baud: int = 250000,
+        sim_args: str = "--time-scale 0", **fields: object,
+    ) -> Path:  # fmt: skip
+        """A printer driven by a simulator runhost starts; returns its record file."""
+        link, record = self.folder / f"{slug}.tty", self.folder / f"{slug}.record"
+        sim = f"{firmware} --link {link} --baud {baud} {sim_args} --record {record}"
+        extra = {"temperature_interval": 0, **fields}
+        self.shell(
+            "from printers.models import Printer; Printer.objects.create("
+            f"name={slug.upper()!r}, slug={slug!r}, firmware={firmware!r}, "
+            f"port={str(link)!r}, baud={baud}, simulator={sim!r}, "
+            f"**{json.dumps(extra)})"
+        )
+        return record
+
+    def add_user(
+        self, username: str, role: str = "", *, printer: str = "",
+        superuser: bool = False, key_printer: str = "",
+    ) -> str:  # fmt: skip
+        """A user with *role* (viewer/operator/admin) on *printer* (or every printer).
+
+        Returns a fresh API key of theirs (bound to *key_printer* if given); the
+        password is the user name.
+        """
+        code = f"""
+from django.contrib.auth import get_user_model
+from printers.models import Printer
+from printhost.access import issue_key
+from printhost.models import PrinterRole, Role
+User = get_user_model()
+user = User.objects.create_user({username!r}, password={username!r},
+    is_superuser={superuser}, is_staff={superuser})
+role, printer, bound = {role!r}, {printer!r}, {key_printer!r}
+if role:
+    PrinterRole.objects.create(user=user, role=Role[role.upper()],
+        printer=Printer.objects.get(slug=printer) if printer else None)
+key, raw = issue_key(user, "test", printer=Printer.objects.get(slug=bound) if bound else None)
+print(raw)
+"""
+        return self.shell(code).splitlines()[-1]
+
+    @contextmanager
+    def running(self, *extra: str, web: bool = True) -> Iterator[subprocess.Popen]:
+        """runhost (daphne, simulators, workers) until the block ends; HTTP is up."""
+        self.port = free_port()
+        args = ["--port", str(self.port)] if web else ["--no-web"]
+        log = (self.folder / "runhost.log").open("wb")
+        process = subprocess.Popen(
+            [sys.executable, "manage.py", "runhost", *args, *extra], cwd=ROOT,
+            env=self.env, stdout=log, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        try:
+            if web:
+                wait_for(
+                    lambda: _accepts(self.port) or process.poll() is not None,
+                    60, "daphne to listen",
+                )  # fmt: skip
+                assert process.poll() is None, self.log_tail()
+            yield process
+        finally:
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+            log.close()
+
+    def log_tail(self, lines: int = 40) -> str:
+        path = self.folder / "runhost.log"
+        text = path.read_text(errors="replace") if path.exists() else ""
+        return "\n".join(text.splitlines()[-lines:])
+
+
+def _accepts(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+    except OSError:
+        return False
