@@ -12,6 +12,8 @@ from jobs.services import delete_job_file, request_action
 if TYPE_CHECKING:
     from django.db.models import QuerySet
     from django.http import HttpRequest
+from printhost.access import admin_caller
+from printhost.audit import record
 
 
 @admin.register(Job)
@@ -50,11 +52,16 @@ class JobAdmin(admin.ModelAdmin):
 
     @admin.action(description="Abort the running job")
     def abort(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        caller = admin_caller(request)
         for job in queryset.filter(state__in=ACTIVE_STATES):
-            request_action(job.printer, "abort", origin=f"admin:{request.user}")
+            request_action(job.printer, "abort", origin=caller.origin)
+            record(caller, "abort", printer=job.printer, job=job)
 
     @admin.action(description="Queue again")
     def requeue(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        caller = admin_caller(request)
+        for job in queryset.exclude(state__in=ACTIVE_STATES):
+            record(caller, "requeue", printer=job.printer, job=job)
         count = queryset.exclude(state__in=ACTIVE_STATES).update(
             state=Job.State.QUEUED,
             lines_sent=0,
@@ -69,7 +76,9 @@ class JobAdmin(admin.ModelAdmin):
     @admin.action(description="Delete with their files")
     def delete_with_files(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         busy = queryset.filter(state__in=ACTIVE_STATES).count()
+        caller = admin_caller(request)
         for job in queryset.exclude(state__in=ACTIVE_STATES):
+            record(caller, "delete", printer=job.printer, detail=job.name)
             delete_job_file(job)
             job.delete()
         if busy:

@@ -12,6 +12,8 @@ from printers.models import Printer, QueuedCommand, ResponseLine
 if TYPE_CHECKING:
     from django.db.models import QuerySet
     from django.http import HttpRequest
+from printhost.access import admin_caller
+from printhost.audit import record
 
 
 @admin.register(Printer)
@@ -71,22 +73,28 @@ class PrinterAdmin(admin.ModelAdmin):
 
     @admin.action(description="The bed is clear: start the next job")
     def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        caller = admin_caller(request)
         for printer in queryset:
-            request_action(printer, "bed_clear", origin=f"admin:{request.user}")
+            request_action(printer, "bed_clear", origin=caller.origin)
+            record(caller, "bed_clear", printer=printer)
         messages.info(request, f"asked {queryset.count()} printer(s) to start")
 
     @admin.action(description="EMERGENCY STOP")
     def stop_now(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        caller = admin_caller(request)
         for printer in queryset:
-            emergency_stop(printer, origin=f"admin:{request.user}")
+            emergency_stop(printer, origin=caller.origin)
+            record(caller, "emergency_stop", printer=printer)
         messages.warning(
             request, f"emergency stop sent to {queryset.count()} printer(s)"
         )
 
     @admin.action(description="Reconnect")
     def reconnect(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
+        caller = admin_caller(request)
         for printer in queryset:
-            request_action(printer, "reconnect", origin=f"admin:{request.user}")
+            request_action(printer, "reconnect", origin=caller.origin)
+            record(caller, "reconnect", printer=printer)
 
 
 @admin.register(QueuedCommand)

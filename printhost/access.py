@@ -220,3 +220,10 @@ def caller_from_key(raw: str, *, client: str, address: str = "") -> Caller | Non
     if key is None:
         return None
     return Caller(client=client, user=key.user, key=key, address=address)
+
+
+def admin_caller(request: HttpRequest) -> Caller:
+    """The caller behind a Django admin action."""
+    return Caller(
+        client="admin", user=request.user, address=request.META.get("REMOTE_ADDR", "")
+    )

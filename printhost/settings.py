@@ -21,6 +21,22 @@ SECRET_KEY = env_str(
     "PRINTHOST_SECRET_KEY", "printhost-insecure-development-key-change-me"
 )
 ALLOWED_HOSTS = env_list("PRINTHOST_ALLOWED_HOSTS", ["127.0.0.1", "localhost", "[::1]"])
+CSRF_TRUSTED_ORIGINS = env_list("PRINTHOST_CSRF_TRUSTED_ORIGINS", [])
+
+# Behind HTTPS (directly or through a proxy that sets X-Forwarded-Proto), cookies are
+# secure-only and browsers are told to stay on HTTPS. A print server on a home LAN
+# often has no certificate, so this is opt-in; `check --deploy` is clean with it on.
+HTTPS = env_bool("PRINTHOST_HTTPS", default=False)
+if HTTPS:
+    SECURE_SSL_REDIRECT = True
+    SESSION_COOKIE_SECURE = True
+    CSRF_COOKIE_SECURE = True
+    SECURE_HSTS_SECONDS = int(env_float("PRINTHOST_HSTS_SECONDS", 31536000))
+    SECURE_HSTS_INCLUDE_SUBDOMAINS = True
+    SECURE_HSTS_PRELOAD = True
+if env_bool("PRINTHOST_BEHIND_PROXY", default=False):
+    SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https")
+X_FRAME_OPTIONS = "DENY"
 
 INSTALLED_APPS = [
     "daphne",
