@@ -79,3 +79,35 @@ def decide(row: AppKeyRequest, user: AbstractBaseUser, *, grant: bool) -> AppKey
             row.state = AppKeyRequest.State.DENIED
         row.save(update_fields=["state", "api_key", "handover"])
         return row
+
+
+#: At most this many requests wait for a decision at once (anyone may ask, so the
+#: table must not grow without bound).
+MAX_PENDING = 20
+
+
+class TooManyRequests(Exception):
+    """Too many pairing requests wait for a decision already."""
+
+
+def pending() -> list[AppKeyRequest]:
+    """Requests still waiting for a decision (stale ones are left out)."""
+    return list(
+        AppKeyRequest.objects.filter(
+            state=AppKeyRequest.State.PENDING, polled_at__gte=stale_before()
+        ).order_by("created_at")
+    )
+
+
+def open_limited_request(
+    app: str, user_hint: str = "", *, origin: str = ""
+) -> AppKeyRequest:
+    """`open_request`, refused once `MAX_PENDING` requests wait; stale ones expire."""
+    AppKeyRequest.objects.filter(
+        state=AppKeyRequest.State.PENDING, polled_at__lt=stale_before()
+    ).update(state=AppKeyRequest.State.DENIED)
+    if len(pending()) >= MAX_PENDING:
+        raise TooManyRequests(
+            f"{MAX_PENDING} app key requests already wait for a decision; try later"
+        )
+    return open_request(app, user_hint, origin=origin)

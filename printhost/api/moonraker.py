@@ -1,7 +1,207 @@
-"""(being written) router for the moonraker endpoints."""
+"""Moonraker's API, as far as slicers use it (PrusaSlicer's and OrcaSlicer's
+"Moonraker" host types, Cura2Moonraker): server info, upload (+ print), job control.
+
+Answers are wrapped in `{"result": ...}` except the upload's, as Moonraker does;
+errors use Moonraker's `{"error": {"code", "message"}}`. Every path is also served
+under `/p/<slug>/`. A busy printer queues an upload that asks to print.
+"""
 
 from __future__ import annotations
 
-from ninja import Router
+import functools
+from typing import TYPE_CHECKING, Any
 
-router = Router()
+from django.http import HttpRequest, HttpResponse, JsonResponse
+from ninja import Router
+from ninja.errors import HttpError
+
+from jobs.gcode import BadGcode
+from jobs.models import Job
+from jobs.services import ChecksumMismatch, emergency_stop, request_action
+from printers.models import Printer
+from printhost.access import Forbidden, NotAuthenticated
+from printhost.api.common import caller_of
+from printhost.api.dialects import (
+    active_job,
+    choose_printer,
+    dialect_route,
+    find_job,
+    print_job,
+    stored_name,
+    truthy,
+    upload_from_form,
+)
+from printhost.audit import record
+from printhost.models import Role
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+router = Router(tags=["Moonraker dialect"])
+
+MOONRAKER_VERSION = "v0.9.3-printhost"
+
+
+def _error(status: int, message: str) -> JsonResponse:
+    return JsonResponse({"error": {"code": status, "message": message}}, status=status)
+
+
+def moonraker_errors(view: Callable[..., HttpResponse]) -> Callable[..., HttpResponse]:
+    """Answer the view's errors in Moonraker's shape (auth before the view stays 401)."""
+
+    @functools.wraps(view)
+    def wrapped(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponse:
+        try:
+            return view(request, *args, **kwargs)
+        except HttpError as error:
+            return _error(error.status_code, str(error))
+        except NotAuthenticated as error:
+            return _error(401, str(error))
+        except Forbidden as error:
+            return _error(403, str(error) or "not allowed")
+        except ChecksumMismatch as error:
+            return _error(422, str(error))
+        except BadGcode as error:
+            return _error(413 if "over the limit" in str(error) else 400, str(error))
+
+    return wrapped
+
+
+def _ok() -> JsonResponse:
+    return JsonResponse({"result": "ok"})
+
+
+@dialect_route(router, "GET", "/server/info")
+@moonraker_errors
+def moonraker_server_info(
+    request: HttpRequest, slug: str | None = None
+) -> HttpResponse:
+    """The connection test: PrusaSlicer needs `result.moonraker_version`."""
+    caller_of(request)
+    printer = None
+    if slug:
+        printer = choose_printer(request, slug, Role.VIEWER)
+    ready = printer is None or printer.state not in (
+        Printer.State.OFFLINE,
+        Printer.State.ERROR,
+    )
+    return JsonResponse(
+        {
+            "result": {
+                "klippy_connected": True,
+                "klippy_state": "ready" if ready else "error",
+                "components": ["file_manager", "job_queue", "octoprint_compat"],
+                "failed_components": [],
+                "registered_directories": ["gcodes"],
+                "warnings": [],
+                "websocket_count": 0,
+                "moonraker_version": MOONRAKER_VERSION,
+                "api_version": [1, 5, 0],
+                "api_version_string": "1.5.0",
+            }
+        }
+    )
+
+
+@dialect_route(router, "POST", "/server/files/upload")
+@moonraker_errors
+def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpResponse:
+    """Multipart `file`, `root`, `path`, `print`, `checksum` (SHA-256; 422 on mismatch)."""
+    printer = choose_printer(request, slug, Role.OPERATOR)
+    root = request.POST.get("root", "gcodes") or "gcodes"
+    if root != "gcodes":
+        raise HttpError(400, f"root {root!r} is not supported; use gcodes")
+    to_print = truthy(request.POST.get("print"))
+    checksum = request.POST.get("checksum", "").strip()
+    busy = (
+        active_job(printer) is not None
+        or printer.state != Printer.State.IDLE
+        or Job.objects.filter(printer=printer, state=Job.State.QUEUED).exists()
+    )
+    job = upload_from_form(request, printer, queue=to_print, sha256=checksum)
+    name = stored_name(job)
+    response = JsonResponse(
+        {
+            "item": {
+                "path": name,
+                "root": "gcodes",
+                "modified": job.created_at.timestamp(),
+                "size": job.size_bytes,
+                "permissions": "rw",
+            },
+            "print_started": to_print and not busy,
+            "print_queued": to_print and busy,
+            "action": "create_file",
+        },
+        status=201,
+    )
+    prefix = f"/p/{slug}" if slug else ""
+    response["Location"] = request.build_absolute_uri(
+        f"{prefix}/server/files/gcodes/{name}"
+    )
+    return response
+
+
+@dialect_route(router, "POST", "/printer/print/start")
+@moonraker_errors
+def moonraker_print_start(
+    request: HttpRequest, filename: str = "", slug: str | None = None
+) -> HttpResponse:
+    """Queue the stored file *filename* (it starts when the printer is ready)."""
+    printer = choose_printer(request, slug, Role.OPERATOR)
+    if not filename:
+        raise HttpError(400, "give the file to print as ?filename=")
+    job = find_job(printer, filename)
+    if job is None:
+        raise HttpError(404, f"no file {filename!r} on printer {printer.slug!r}")
+    print_job(caller_of(request), job)
+    return _ok()
+
+
+def _job_action(request: HttpRequest, slug: str | None, action: str) -> HttpResponse:
+    printer = choose_printer(request, slug, Role.OPERATOR)
+    running = active_job(printer)
+    needs = {"pause": Job.State.PRINTING, "resume": Job.State.PAUSED}
+    if running is None or (action in needs and running.state != needs[action]):
+        state = running.state if running else "no job"
+        raise HttpError(409, f"cannot {action}: printer {printer.slug!r} has {state}")
+    caller = caller_of(request)
+    request_action(printer, action, origin=caller.origin)
+    record(caller, f"job.{action}", printer=printer, job=running, detail=running.name)
+    return _ok()
+
+
+@dialect_route(router, "POST", "/printer/print/pause")
+@moonraker_errors
+def moonraker_print_pause(
+    request: HttpRequest, slug: str | None = None
+) -> HttpResponse:
+    return _job_action(request, slug, "pause")
+
+
+@dialect_route(router, "POST", "/printer/print/resume")
+@moonraker_errors
+def moonraker_print_resume(
+    request: HttpRequest, slug: str | None = None
+) -> HttpResponse:
+    return _job_action(request, slug, "resume")
+
+
+@dialect_route(router, "POST", "/printer/print/cancel")
+@moonraker_errors
+def moonraker_print_cancel(
+    request: HttpRequest, slug: str | None = None
+) -> HttpResponse:
+    return _job_action(request, slug, "abort")
+
+
+@dialect_route(router, "POST", "/printer/emergency_stop")
+@moonraker_errors
+def moonraker_emergency_stop(
+    request: HttpRequest, slug: str | None = None
+) -> HttpResponse:
+    printer = choose_printer(request, slug, Role.OPERATOR)
+    caller = caller_of(request)
+    emergency_stop(printer, origin=caller.origin)
+    record(caller, "emergency_stop", printer=printer, detail="Moonraker")
+    return _ok()
