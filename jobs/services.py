@@ -239,3 +239,39 @@ def request_action(printer: Printer, action: str, *, origin: str = "") -> Queued
     return QueuedCommand.objects.create(
         printer=printer, kind=QueuedCommand.Kind.ACTION, text=action, origin=origin
     )
+
+
+def reorder_queue(printer: Printer, ids: list[int]) -> list[Job]:
+    """Put the queued jobs *ids* first, in that order; the other queued jobs follow.
+
+    Only queued jobs of *printer* may be named (ValueError otherwise). Positions are
+    rewritten from the queue's lowest one upwards in one transaction, so a worker
+    claiming the head meanwhile sees either the old or the new order.
+    """
+    if len(set(ids)) != len(ids):
+        raise ValueError("a job appears twice in the new order")
+    with transaction.atomic():
+        queued = list(
+            Job.objects.select_for_update()
+            .filter(printer=printer, state=Job.State.QUEUED)
+            .order_by("position", "id")
+        )
+        by_id = {job.pk: job for job in queued}
+        unknown = [i for i in ids if i not in by_id]
+        if unknown:
+            raise ValueError(
+                f"not queued on {printer.slug}: {', '.join(str(i) for i in unknown)}"
+            )
+        order = [by_id[i] for i in ids] + [j for j in queued if j.pk not in set(ids)]
+        base = min((job.position for job in queued), default=0)
+        for index, job in enumerate(order):
+            position = base + index
+            if job.position != position:
+                job.position = position
+                Job.objects.filter(pk=job.pk).update(position=position)
+    return order
+
+
+def queue_is_empty(printer: Printer) -> bool:
+    """No job waits in *printer*'s queue (Repetier's `autostart=-1` asks this)."""
+    return not Job.objects.filter(printer=printer, state=Job.State.QUEUED).exists()

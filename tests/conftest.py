@@ -108,3 +108,9 @@ def job_lines(sim: Sim) -> list[str]:
         for c in sim.executed()
         if c.startswith(("G", "M")) and not c.startswith(HOST_COMMANDS)
     ]
+
+
+@pytest.fixture(autouse=True)
+def fast_password_hashing(settings: object) -> None:
+    """Tests create many users; a deliberately slow hash would dominate their time."""
+    settings.PASSWORD_HASHERS = ["django.contrib.auth.hashers.MD5PasswordHasher"]  # type: ignore[attr-defined]

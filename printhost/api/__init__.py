@@ -45,6 +45,7 @@ ROUTER_MODULES: list[str] = [
     "octoprint",
     "appkeys",
     "keys",
+    "config",
     "printer",
     "uploads",
 ]

@@ -9,6 +9,7 @@ understand it. Dialect modules (OctoPrint, Moonraker) answer in their own shapes
 
 from __future__ import annotations
 
+import json
 import logging
 from typing import Any
 
@@ -72,6 +73,19 @@ def printer_for(request: HttpRequest, slug: str, role: int) -> Printer:
         raise HttpError(404, f"Unknown printer {slug!r}")
     caller.require(printer, role)
     return printer
+
+
+def json_body(request: HttpRequest) -> dict[str, Any]:
+    """The request's JSON object body ({} when empty); 400 with a reason otherwise."""
+    if not request.body:
+        return {}
+    try:
+        data = json.loads(request.body)
+    except (ValueError, UnicodeDecodeError) as error:
+        raise HttpError(400, f"the body is not valid JSON: {error}") from None
+    if not isinstance(data, dict):
+        raise HttpError(400, "the body must be a JSON object")
+    return data
 
 
 def install_error_handlers(api: Any) -> None:

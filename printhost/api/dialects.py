@@ -8,7 +8,6 @@ a key bound to a printer names it, else the user's default printer.
 from __future__ import annotations
 
 import inspect
-import json
 from typing import TYPE_CHECKING, Any
 
 from django.utils import timezone
@@ -18,7 +17,7 @@ from jobs.models import ACTIVE_STATES, FINISHED_STATES, Job
 from jobs.services import enqueue_upload, queue_job, reprint
 from printers.models import Printer
 from printhost.access import Forbidden
-from printhost.api.common import caller_of
+from printhost.api.common import caller_of, json_body  # noqa: F401 (re-exported)
 from printhost.audit import record
 from printhost.models import Role
 
@@ -106,19 +105,6 @@ def choose_printer(request: HttpRequest, slug: str | None, role: int) -> Printer
             raise HttpError(409, CHOOSE_PRINTER_HELP)
     caller.require(printer, role)
     return printer
-
-
-def json_body(request: HttpRequest) -> dict[str, Any]:
-    """The request's JSON object body ({} when empty); 400 with a reason otherwise."""
-    if not request.body:
-        return {}
-    try:
-        data = json.loads(request.body)
-    except (ValueError, UnicodeDecodeError) as error:
-        raise HttpError(400, f"the body is not valid JSON: {error}") from None
-    if not isinstance(data, dict):
-        raise HttpError(400, "the body must be a JSON object")
-    return data
 
 
 def truthy(value: object) -> bool:
