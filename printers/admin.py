@@ -67,7 +67,7 @@ class PrinterAdmin(admin.ModelAdmin):
                 ]
             },
         ),
-        ("Other", {"fields": ["response_log_limit", "simulator"]}),
+        ("Other", {"fields": ["response_log_limit", "terminal_port", "simulator"]}),
         ("Live (written by the worker)", {"fields": readonly_fields}),
     ]
 

@@ -90,6 +90,14 @@ class Printer(models.Model):
         blank=True,
         help_text="simulate_printer arguments; runhost starts this simulator",
     )
+    terminal_port = models.PositiveIntegerField(
+        null=True,
+        blank=True,
+        unique=True,
+        validators=[MinValueValidator(1), MaxValueValidator(65535)],
+        help_text="TCP port of the raw terminal (socket://host:port; API key as the "
+        "first line); empty = no terminal",
+    )
 
     # Written by the worker only.
     state = models.CharField(

@@ -111,7 +111,7 @@ class Supervisor:
                 child.start(now)
 
     def wanted(self) -> dict[str, list[str]]:
-        """What should run now: web server, simulators, then workers (in that order)."""
+        """What should run now: web server, simulators, terminals, then workers."""
         python = sys.executable
         wanted: dict[str, list[str]] = {}
         if self.serve_web:
@@ -129,6 +129,8 @@ class Supervisor:
                     "printers.simulator",
                     *argv,
                 ]
+        if any(printer.terminal_port for printer in printers):
+            wanted["terminal"] = [python, MANAGE, "run_terminal"]
         for printer in printers:
             wanted[f"worker:{printer.slug}"] = [
                 python,

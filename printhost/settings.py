@@ -104,7 +104,10 @@ if REDIS_URL:
     CHANNEL_LAYERS = {
         "default": {
             "BACKEND": "channels_redis.core.RedisChannelLayer",
-            "CONFIG": {"hosts": [REDIS_URL]},
+            "CONFIG": {
+                "hosts": [REDIS_URL],
+                "prefix": env_str("PRINTHOST_CHANNEL_PREFIX", "printhost"),
+            },
         }
     }
 else:
@@ -132,6 +135,8 @@ PRINTHOST_MAX_JOB_BYTES = int(env_float("PRINTHOST_MAX_JOB_BYTES", 2 * 1024**3))
 PRINTHOST_LEASE_SECONDS = env_float("PRINTHOST_LEASE_SECONDS", 10.0)
 #: How often (s) a worker looks in the database for new requests.
 PRINTHOST_POLL_SECONDS = env_float("PRINTHOST_POLL_SECONDS", 0.1)
+#: Address the raw TCP terminals listen on (one port per printer, `terminal_port`).
+PRINTHOST_TERMINAL_BIND = env_str("PRINTHOST_TERMINAL_BIND", "127.0.0.1")
 
 LOGGING = {
     "version": 1,

@@ -8,6 +8,7 @@ from django.db import connections, transaction
 from django.db.models import Max
 from django.utils import timezone
 
+from printers import live
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
@@ -68,7 +69,8 @@ class ResponseLog:
         table = ResponseLine._meta.db_table
         connection = connections[ResponseLine.objects.db]
         adapt = connection.ops.adapt_datetimefield_value
-        rows = [(self.printer_id, seq, adapt(t), x, k) for seq, t, x, k in self._buffer]
+        batch = list(self._buffer)
+        rows = [(self.printer_id, seq, adapt(t), x, k) for seq, t, x, k in batch]
         self._buffer.clear()
         sql = (
             f"INSERT INTO {connection.ops.quote_name(table)} "
@@ -76,6 +78,8 @@ class ResponseLog:
         )
         with transaction.atomic(), connection.cursor() as cursor:
             cursor.executemany(sql, rows)
+        # Published after the commit: a client can always read a gap from the table.
+        live.publisher().lines(self.printer_id, batch)
 
     def prune(self) -> int:
         """Delete lines older than the retention bound; returns how many went."""

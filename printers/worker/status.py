@@ -6,6 +6,7 @@ from typing import Any
 
 from django.utils import timezone
 
+from printers import live
 from printers.models import Printer
 
 #: Temperatures and machine status are saved at most this often (s).
@@ -48,6 +49,7 @@ class PrinterStatus:
             state=self.state, state_message=self.message, worker_seen_at=timezone.now()
         )
         Printer.objects.filter(pk=self.printer_id).update(**values)
+        live.publisher().status(self.printer_id, values)
         self._dirty.clear()
         self._saved_state = (self.state, self.message)
         self._save_at = now + SAVE_SECONDS

@@ -1,0 +1,388 @@
+"""Websocket clients of the live feed: one printer (`/ws/printers/<slug>/`) or all.
+
+Each connection is an ESP3D client with a context (a `Caller`): authenticated on
+connect (session cookie, or an API key as `?apikey=` / `?token=` / `X-Api-Key` /
+`Authorization: Bearer`), refused with close code 4401 (no or bad credentials), 4403
+(no viewer role, or a key bound to another printer) or 4404 (unknown printer).
+
+Out: `hello` (state snapshot and the log's last id), `lines`, `state`,
+`temperatures`, `job`, `truncated`, `queued`, `reply`, `error`. In: `{"cmd": ...}` and
+`{"action": ...}` (operator role); on the all-printers feed they name a `printer`.
+`?last=<id>` resumes after that id (`0` = everything the log keeps; on the
+all-printers feed `?last.<slug>=<id>` per printer); `?filter=<bits>`
+hides kinds as Repetier's filter does (8 is never hidden).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import parse_qs
+
+from channels.db import database_sync_to_async
+from channels.generic.websocket import AsyncJsonWebsocketConsumer
+from django.contrib.auth.models import AnonymousUser
+
+from jobs import services
+from printers import live
+from printers.models import Printer, QueuedCommand
+from printhost import audit
+from printhost.access import Caller, caller_from_key
+from printhost.models import Role
+
+logger = logging.getLogger("printhost.live")
+
+#: An [ESPxxx] reply is awaited at most this long (s), polling every REPLY_POLL.
+REPLY_TIMEOUT = 30.0
+REPLY_POLL = 0.1
+#: Close codes: the HTTP status plus 4000, as many websocket APIs do.
+CLOSE_UNAUTHENTICATED = 4401
+CLOSE_FORBIDDEN = 4403
+CLOSE_NOT_FOUND = 4404
+ACTIONS = ("pause", "resume", "abort", "bed_clear", "emergency_stop")
+
+
+class Refused(Exception):
+    """The connection may not go on: close with *code* after saying why."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def key_from_scope(scope: dict[str, Any]) -> str | None:
+    """The API key a websocket handshake carries, if any."""
+    headers = {name.lower(): value for name, value in scope.get("headers", [])}
+    if headers.get(b"x-api-key"):
+        return headers[b"x-api-key"].decode("latin1").strip()
+    scheme, _, value = (
+        headers.get(b"authorization", b"").decode("latin1").partition(" ")
+    )
+    if scheme.lower() == "bearer" and value.strip():
+        return value.strip()
+    query = query_of(scope)
+    for name in ("apikey", "token"):
+        if query.get(name):
+            return query[name].strip()
+    return None
+
+
+def query_of(scope: dict[str, Any]) -> dict[str, str]:
+    raw = scope.get("query_string", b"").decode("latin1")
+    return {name: values[-1] for name, values in parse_qs(raw).items()}
+
+
+def caller_from_scope(scope: dict[str, Any]) -> Caller:
+    """The caller of a handshake (sync: reads keys). Raises Refused(4401)."""
+    client = scope.get("client") or ("", 0)
+    address = str(client[0] or "")
+    raw = key_from_scope(scope)
+    if raw is not None:
+        caller = caller_from_key(raw, client="websocket", address=address)
+        if caller is None:
+            raise Refused(CLOSE_UNAUTHENTICATED, "invalid or revoked API key")
+        return caller
+    user = scope.get("user") or AnonymousUser()
+    if not user.is_authenticated:
+        raise Refused(CLOSE_UNAUTHENTICATED, "log in or give an API key")
+    return Caller(client="websocket", user=user, address=address)
+
+
+def int_param(query: dict[str, str], name: str) -> int | None:
+    value = query.get(name)
+    if value is None or value == "":
+        return None
+    try:
+        number = int(value)
+    except ValueError:
+        raise Refused(4400, f"{name} must be a whole number, not {value!r}") from None
+    if number < 0:
+        raise Refused(4400, f"{name} must not be negative")
+    return number
+
+
+@dataclass
+class Feed:
+    """One printer this connection watches, and where its client is in the log."""
+
+    printer: Printer
+    cursor: live.LineCursor
+
+
+class LiveConsumer(AsyncJsonWebsocketConsumer):
+    """What both feeds share: auth, subscribing, relaying lines, commands."""
+
+    caller: Caller
+    feeds: dict[int, Feed]
+
+    async def connect(self) -> None:
+        self.feeds = {}
+        self.tasks: set[asyncio.Task[None]] = set()
+        await self.accept()
+        try:
+            self.caller = await database_sync_to_async(caller_from_scope)(self.scope)
+            query = query_of(self.scope)
+            self.filter = int_param(query, "filter") or 0
+            printers = await database_sync_to_async(self.printers_to_watch)()
+            starts = {p.pk: int_param(query, self.last_param(p)) for p in printers}
+        except Refused as refused:
+            await self.send_json({"type": "error", "message": str(refused)})
+            await self.close(code=refused.code)
+            return
+        for printer in printers:
+            await self.subscribe(printer, starts[printer.pk])
+
+    def printers_to_watch(self) -> list[Printer]:
+        raise NotImplementedError
+
+    def last_param(self, printer: Printer) -> str:
+        """The query parameter holding the last id the client saw of *printer*."""
+        raise NotImplementedError
+
+    async def receive(
+        self,
+        text_data: str | None = None,
+        bytes_data: bytes | None = None,
+        **kwargs: Any,
+    ) -> None:
+        """Bad JSON gets an error message, not a dropped connection."""
+        try:
+            content = json.loads(
+                text_data if text_data is not None else bytes_data or b""
+            )
+        except ValueError:
+            await self.send_json({"type": "error", "message": "send JSON objects"})
+            return
+        await self.receive_json(content)
+
+    async def disconnect(self, code: int) -> None:
+        for task in list(getattr(self, "tasks", ())):
+            task.cancel()
+        for printer_id in list(getattr(self, "feeds", {})):
+            await self.channel_layer.group_discard(
+                live.group_for(printer_id), self.channel_name
+            )
+            await live.unwatch(printer_id)
+        self.feeds = {}
+
+    async def subscribe(self, printer: Printer, last: int | None) -> None:
+        """Join the printer's group first, then read the database: nothing falls between.
+
+        Without *last* the client starts at the newest line (no history); with it,
+        every line after that id is sent first (`0` = all the log keeps).
+        """
+        await self.channel_layer.group_add(
+            live.group_for(printer.pk), self.channel_name
+        )
+        await live.watch(printer.pk)
+        snap = await database_sync_to_async(live.snapshot)(printer.pk)
+        start = snap["last"] if last is None else last
+        feed = Feed(printer, live.LineCursor(start, self.filter))
+        self.feeds[printer.pk] = feed
+        await self.send_json(
+            {
+                "type": "hello",
+                "printer": printer.slug,
+                "last": snap["last"],
+                "first": snap["first"],
+                "state": snap["state"],
+                "message": snap["message"],
+                "firmware_name": snap["firmware_name"],
+                "machine_status": snap["machine_status"],
+                "temperatures": snap["temperatures"],
+                "job": snap["job"],
+            }
+        )
+        await self.catch_up(feed, None)
+
+    async def catch_up(self, feed: Feed, upto: int | None) -> None:
+        """Send the lines after the cursor (up to *upto*) from the database."""
+        read = database_sync_to_async(live.lines_after)
+        while True:
+            lines = await read(feed.printer.pk, feed.cursor.last, upto)
+            first = (
+                lines[0]["id"] if lines else (upto + 1 if upto is not None else None)
+            )
+            notice = feed.cursor.truncated(first)
+            if notice is not None:
+                await self.send_json({**notice, "printer": feed.printer.slug})
+            await self.send_lines(feed, feed.cursor.take(lines))
+            if len(lines) < live.PAGE_LINES:
+                return
+
+    async def send_lines(self, feed: Feed, lines: list[live.Line]) -> None:
+        if lines:
+            await self.send_json(
+                {"type": "lines", "printer": feed.printer.slug, "lines": lines}
+            )
+
+    async def live_event(self, message: dict[str, Any]) -> None:
+        """A message from the printer's group (the relay or the worker)."""
+        feed = self.feeds.get(message["printer_id"])
+        if feed is None:
+            return
+        event = message["event"]
+        slug = feed.printer.slug
+        if event["type"] == "lines":
+            gap = feed.cursor.gap(event["lines"])
+            if gap is not None:
+                await self.catch_up(feed, gap[1])
+            await self.send_lines(feed, feed.cursor.take(event["lines"]))
+        else:
+            await self.send_json({**event, "printer": slug})
+
+    # -- messages in ------------------------------------------------------------------
+
+    async def receive_json(self, content: Any, **kwargs: Any) -> None:
+        if not getattr(self, "feeds", None):
+            return
+        try:
+            if not isinstance(content, dict):
+                raise ValueError('send a JSON object: {"cmd": ...} or {"action": ...}')
+            feed = self.feed_for(content)
+            if "filter" in content:
+                bits = content["filter"]
+                if not isinstance(bits, int) or bits < 0:
+                    raise ValueError("filter must be a whole number >= 0")
+                feed.cursor.filter = bits
+            elif "cmd" in content:
+                await self.command(feed, content["cmd"])
+            elif "action" in content:
+                await self.action(feed, content["action"])
+            else:
+                raise ValueError('nothing to do: send {"cmd": ...} or {"action": ...}')
+        except (ValueError, PermissionError) as error:
+            await self.send_json({"type": "error", "message": str(error)})
+
+    def feed_for(self, content: dict[str, Any]) -> Feed:
+        raise NotImplementedError
+
+    async def command(self, feed: Feed, text: Any) -> None:
+        if not isinstance(text, str) or not text.strip():
+            raise ValueError("cmd must be a non-empty string")
+        row = await database_sync_to_async(run_command)(self.caller, feed.printer, text)
+        reply = {"type": "queued", "printer": feed.printer.slug, "id": row.pk}
+        await self.send_json({**reply, "cmd": row.text})
+        if row.text.startswith("[ESP"):
+            self.spawn(self.answer(feed, row.pk, row.text))
+
+    async def action(self, feed: Feed, name: Any) -> None:
+        if name not in ACTIONS:
+            raise ValueError(
+                f"unknown action {name!r}; use one of {', '.join(ACTIONS)}"
+            )
+        row = await database_sync_to_async(run_action)(self.caller, feed.printer, name)
+        reply = {"type": "queued", "printer": feed.printer.slug, "id": row.pk}
+        await self.send_json({**reply, "action": name})
+
+    async def answer(self, feed: Feed, row_id: int, text: str) -> None:
+        """ESP3D routing: an [ESPxxx] reply goes to the client that asked, only."""
+        reply = await wait_reply(row_id)
+        await self.send_json(
+            {
+                "type": "reply",
+                "printer": feed.printer.slug,
+                "id": row_id,
+                "cmd": text,
+                "reply": reply,
+            }
+        )
+
+    def spawn(self, coroutine: Any) -> None:
+        task = asyncio.ensure_future(coroutine)
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+
+
+class PrinterConsumer(LiveConsumer):
+    """`/ws/printers/<slug>/`: one printer's feed."""
+
+    def printers_to_watch(self) -> list[Printer]:
+        slug = self.scope["url_route"]["kwargs"]["slug"]
+        printer = Printer.objects.filter(slug=slug).first()
+        if printer is None:
+            raise Refused(CLOSE_NOT_FOUND, f"unknown printer {slug!r}")
+        if not self.caller.can(printer, Role.VIEWER):
+            bound = self.caller.bound_printer_id
+            if bound is not None and bound != printer.pk:
+                raise Refused(
+                    CLOSE_FORBIDDEN, "this API key is bound to another printer"
+                )
+            raise Refused(CLOSE_FORBIDDEN, f"viewer role needed on printer {slug!r}")
+        return [printer]
+
+    def last_param(self, printer: Printer) -> str:
+        return "last"
+
+    def feed_for(self, content: dict[str, Any]) -> Feed:
+        return next(iter(self.feeds.values()))
+
+
+class PrintersConsumer(LiveConsumer):
+    """`/ws/printers/`: every printer the caller may view, each line naming its printer."""
+
+    def printers_to_watch(self) -> list[Printer]:
+        return self.caller.printers(Role.VIEWER)
+
+    def last_param(self, printer: Printer) -> str:
+        """Ids are per printer: `?last.<slug>=<id>` resumes each one."""
+        return f"last.{printer.slug}"
+
+    def feed_for(self, content: dict[str, Any]) -> Feed:
+        slug = content.get("printer")
+        for feed in self.feeds.values():
+            if feed.printer.slug == slug:
+                return feed
+        raise ValueError(f"name a printer you watch: unknown printer {slug!r}")
+
+
+# -- the shared client paths (sync; the terminal uses them too) -----------------------
+
+
+def check_operator(caller: Caller, printer: Printer) -> None:
+    """Raise PermissionError unless *caller* may act on *printer*."""
+    if not caller.can(printer, Role.OPERATOR):
+        raise PermissionError(f"operator role needed on printer {printer.slug!r}")
+
+
+def run_command(caller: Caller, printer: Printer, text: str) -> QueuedCommand:
+    """Queue a command for the printer as *caller*, audited."""
+    check_operator(caller, printer)
+    row = services.send_command(printer, text, origin=caller.origin)
+    audit.record(caller, "command", printer=printer, detail=row.text)
+    return row
+
+
+def run_action(caller: Caller, printer: Printer, name: str) -> QueuedCommand:
+    """Pause/resume/abort/clear the bed/stop now, as *caller*, audited."""
+    check_operator(caller, printer)
+    if name == "emergency_stop":
+        row = services.emergency_stop(printer, origin=caller.origin)
+    else:
+        row = services.request_action(printer, name, origin=caller.origin)
+    audit.record(caller, name, printer=printer)
+    return row
+
+
+async def wait_reply(row_id: int) -> str:
+    """The worker's reply to a queued request, or an error after REPLY_TIMEOUT."""
+    read = database_sync_to_async(_reply_of)
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + REPLY_TIMEOUT
+    while loop.time() < deadline:
+        reply = await read(row_id)
+        if reply is not None:
+            return reply
+        await asyncio.sleep(REPLY_POLL)
+    return "error: no reply from the printer's worker (is it running?)"
+
+
+def _reply_of(row_id: int) -> str | None:
+    row = QueuedCommand.objects.filter(pk=row_id).values("state", "reply").first()
+    if row is None:
+        return "error: the request was removed"
+    done = (QueuedCommand.State.DONE, QueuedCommand.State.FAILED)
+    return row["reply"] if row["state"] in done else None

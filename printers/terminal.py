@@ -1,0 +1,253 @@
+"""The raw TCP terminal: ESP3D's telnet client, one listening port per printer.
+
+Any program that opens `socket://host:<terminal_port>` (netcat, a terminal,
+Pronterface, another host) is a client. Protocol, one line at a time:
+
+1. the client's first line is an API key; a bad key gets `error: invalid API key` and
+   the connection is closed; a key without a viewer role on the printer gets an
+   `error: ...` line and is closed too;
+2. from then on every response-log line of the printer is written as `<text>\\n`
+   (printhost's own notes start with `// printhost:`), filtered by the kinds set with
+   `filter <bits>` (Repetier's bits; 8 is never hidden);
+3. each line the client sends is a command for the printer, through the same queue
+   and permissions as HTTP and websockets (operator role; a viewer gets `error: ...`);
+   an `[ESPxxx]` command's reply goes to this client only.
+
+The feed is the same as the websockets': the printer's channel-layer group, fed by
+the worker (Redis) or by this process's relay (no Redis), gaps filled from the log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import Any
+
+from channels.db import database_sync_to_async
+from channels.layers import get_channel_layer
+from django.conf import settings
+
+from printers import live
+from printers.consumers import run_command, wait_reply
+from printers.models import Printer
+from printhost.access import Caller, caller_from_key
+from printhost.models import Role
+
+logger = logging.getLogger("printhost.terminal")
+
+#: The key line must arrive within this many seconds.
+LOGIN_SECONDS = 30.0
+#: Longest line a client may send (bytes); longer ones end the session.
+MAX_LINE = 4096
+#: How often the listeners are matched with the printer table (s).
+RESCAN_SECONDS = 5.0
+
+
+class Session:
+    """One connected terminal client of one printer."""
+
+    def __init__(
+        self,
+        printer: Printer,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+    ) -> None:
+        self.printer = printer
+        self.reader = reader
+        self.writer = writer
+        self.caller: Caller | None = None
+        self.cursor = live.LineCursor(0)
+        self.tasks: set[asyncio.Task[None]] = set()
+        peer = writer.get_extra_info("peername")
+        self.address = str(peer[0]) if peer else ""
+
+    async def run(self) -> None:
+        try:
+            if await self.login():
+                await self.serve()
+        except (
+            ConnectionError,
+            asyncio.IncompleteReadError,
+            asyncio.LimitOverrunError,
+        ):
+            pass
+        finally:
+            for task in self.tasks:
+                task.cancel()
+            self.writer.close()
+            with contextlib.suppress(Exception):
+                await self.writer.wait_closed()
+
+    async def login(self) -> bool:
+        """Read the key line; say why and refuse when it does not give a viewer."""
+        try:
+            raw = await asyncio.wait_for(self.reader.readline(), LOGIN_SECONDS)
+        except TimeoutError:
+            await self.say("error: no API key given in time")
+            return False
+        key = raw.decode("utf-8", "replace").strip()
+        find = database_sync_to_async(caller_from_key)
+        caller = await find(key, client="telnet", address=self.address) if key else None
+        if caller is None:
+            await self.say("error: invalid API key")
+            return False
+        if not await database_sync_to_async(caller.can)(self.printer, Role.VIEWER):
+            await self.say(
+                f"error: this key may not watch printer {self.printer.slug!r}"
+            )
+            return False
+        self.caller = caller
+        role = await database_sync_to_async(caller.role)(self.printer)
+        label = Role(role).name.lower() if role else "none"
+        name = getattr(caller.user, "username", "")
+        await self.say(f"// printhost: {self.printer.slug} as {name} ({label})")
+        return True
+
+    async def serve(self) -> None:
+        """Output and input side by side until the client leaves."""
+        layer = get_channel_layer()
+        channel = await layer.new_channel()
+        group = live.group_for(self.printer.pk)
+        await layer.group_add(group, channel)
+        await live.watch(self.printer.pk)
+        try:
+            _, last = await database_sync_to_async(live.log_bounds)(self.printer.pk)
+            self.cursor = live.LineCursor(last)
+            output = asyncio.ensure_future(self.output(layer, channel))
+            commands = asyncio.ensure_future(self.commands())
+            self.tasks |= {output, commands}
+            done, _ = await asyncio.wait(
+                {output, commands}, return_when=asyncio.FIRST_COMPLETED
+            )
+            for task in done:
+                if task.exception() is not None and not isinstance(
+                    task.exception(), ConnectionError
+                ):
+                    logger.error("terminal session failed", exc_info=task.exception())
+        finally:
+            await layer.group_discard(group, channel)
+            await live.unwatch(self.printer.pk)
+
+    async def output(self, layer: Any, channel: str) -> None:
+        while True:
+            message = await layer.receive(channel)
+            event = message.get("event", {})
+            if event.get("type") != "lines":
+                continue
+            gap = self.cursor.gap(event["lines"])
+            if gap is not None:
+                await self.catch_up(gap[1])
+            await self.write_lines(self.cursor.take(event["lines"]))
+
+    async def catch_up(self, upto: int) -> None:
+        read = database_sync_to_async(live.lines_after)
+        while True:
+            lines = await read(self.printer.pk, self.cursor.last, upto)
+            first = lines[0]["id"] if lines else upto + 1
+            if self.cursor.truncated(first) is not None:
+                await self.say(f"// printhost: lines before {first} were not kept")
+            await self.write_lines(self.cursor.take(lines))
+            if len(lines) < live.PAGE_LINES:
+                return
+
+    async def write_lines(self, lines: list[live.Line]) -> None:
+        if lines:
+            self.writer.write("".join(f"{line['text']}\n" for line in lines).encode())
+            await self.writer.drain()
+
+    async def commands(self) -> None:
+        while True:
+            raw = await self.reader.readline()
+            if not raw:
+                return
+            if len(raw) > MAX_LINE:
+                await self.say(f"error: line longer than {MAX_LINE} bytes")
+                return
+            text = raw.decode("utf-8", "replace").strip()
+            if text:
+                await self.command(text)
+
+    async def command(self, text: str) -> None:
+        """One line from the client: `filter <bits>`, or a command for the printer."""
+        word, _, rest = text.partition(" ")
+        if word.lower() == "filter":
+            try:
+                self.cursor.filter = int(rest)
+            except ValueError:
+                await self.say(
+                    "error: filter takes a number (1 commands, 2 acks, 4 other)"
+                )
+            return
+        try:
+            row = await database_sync_to_async(run_command)(
+                self.caller, self.printer, text
+            )
+        except (PermissionError, ValueError) as error:
+            await self.say(f"error: {error}")
+            return
+        if row.text.startswith("[ESP"):
+            task = asyncio.ensure_future(self.answer(row.pk))
+            self.tasks.add(task)
+            task.add_done_callback(self.tasks.discard)
+
+    async def answer(self, row_id: int) -> None:
+        """ESP3D routing: the reply to this client's [ESPxxx] goes to it alone."""
+        await self.say(await wait_reply(row_id))
+
+    async def say(self, text: str) -> None:
+        self.writer.write(f"{text}\n".encode())
+        await self.writer.drain()
+
+
+class TerminalServer:
+    """Listens on every printer's terminal port; follows the printer table."""
+
+    def __init__(self, bind: str | None = None) -> None:
+        self.bind = bind or settings.PRINTHOST_TERMINAL_BIND
+        self.servers: dict[str, tuple[int, asyncio.Server]] = {}
+
+    async def run(self, stop: asyncio.Event) -> None:
+        try:
+            while not stop.is_set():
+                await self.rescan()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), RESCAN_SECONDS)
+        finally:
+            for slug in list(self.servers):
+                await self.close(slug)
+
+    async def rescan(self) -> None:
+        """Open listeners for new terminal ports, close the ones that went away."""
+        wanted = await database_sync_to_async(_wanted)()
+        for slug in list(self.servers):
+            if self.servers[slug][0] != (wanted.get(slug) or (None,))[0]:
+                await self.close(slug)
+        for slug, (port, printer) in wanted.items():
+            if slug in self.servers:
+                continue
+            try:
+                server = await asyncio.start_server(
+                    lambda r, w, p=printer: Session(p, r, w).run(),
+                    self.bind,
+                    port,
+                    limit=MAX_LINE * 2,
+                )
+            except OSError as error:
+                logger.error(
+                    "terminal of %s cannot listen on %s: %s", slug, port, error
+                )
+                continue
+            logger.info("terminal of %s on %s:%s", slug, self.bind, port)
+            self.servers[slug] = (port, server)
+
+    async def close(self, slug: str) -> None:
+        _, server = self.servers.pop(slug)
+        server.close()
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(server.wait_closed(), 2)
+
+
+def _wanted() -> dict[str, tuple[int, Printer]]:
+    printers = Printer.objects.filter(enabled=True, terminal_port__isnull=False)
+    return {p.slug: (p.terminal_port, p) for p in printers}
