@@ -133,6 +133,8 @@ STATIC_ROOT = DATA_DIR / "static"
 PRINTHOST_MAX_JOB_BYTES = int(env_float("PRINTHOST_MAX_JOB_BYTES", 2 * 1024**3))
 #: Seconds a worker's claim on its printer lasts without renewal.
 PRINTHOST_LEASE_SECONDS = env_float("PRINTHOST_LEASE_SECONDS", 10.0)
+#: How long (s) `/printer/send` waits for the worker's answer to an [ESPxxx] command.
+PRINTHOST_ESP_REPLY_SECONDS = env_float("PRINTHOST_ESP_REPLY_SECONDS", 5.0)
 #: How often (s) a worker looks in the database for new requests.
 PRINTHOST_POLL_SECONDS = env_float("PRINTHOST_POLL_SECONDS", 0.1)
 #: Address the raw TCP terminals listen on (one port per printer, `terminal_port`).

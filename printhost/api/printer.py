@@ -350,7 +350,7 @@ async def send(request: HttpRequest, slug: str) -> HttpResponse:
     )
     if not command.upper().startswith("[ESP"):
         return envelope({"id": row.pk, "kind": row.kind})
-    wait = float(getattr(settings, "PRINTHOST_ESP_REPLY_SECONDS", 5.0))
+    wait = settings.PRINTHOST_ESP_REPLY_SECONDS
     deadline = asyncio.get_running_loop().time() + wait
     while True:
         found = (
