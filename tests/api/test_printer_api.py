@@ -160,10 +160,12 @@ def test_response_rejects_garbage_with_400(keys, printer, query: str) -> None:
     assert body["error"]
 
 
-def _upload(key: str, text: str = GCODE, **fields: str) -> tuple[int, dict]:
+def _upload(
+    key: str, text: str = GCODE, slug: str = "mk3", **fields: str
+) -> tuple[int, dict]:
     data = {"a": "upload", **fields}
     data["filename"] = SimpleUploadedFile("part.gcode", text.encode())
-    return call("post", "/printer/job/mk3", key, data=data)
+    return call("post", f"/printer/job/{slug}", key, data=data)
 
 
 def test_job_upload_queues_a_job(keys, printer) -> None:
@@ -210,11 +212,18 @@ def test_job_upload_without_a_file_is_400(keys, printer) -> None:
     assert "filename" in body["error"]
 
 
-def test_bound_key_sends_uploads_to_its_printer(keys, printer, make_printer) -> None:
+def test_bound_key_uploads_to_its_printer_and_is_refused_on_another(
+    keys, printer, make_printer
+) -> None:
     other = make_printer(slug="other", state=Printer.State.IDLE)
-    status, body = _upload(keys(bound=other))
+    key = keys(bound=other)
+    status, body = _upload(key, slug="-")
     assert status == 200
     assert Job.objects.get(pk=body["data"]["id"]).printer == other
+    status, body = _upload(key, slug="mk3")
+    assert status == 403
+    assert "bound to printer 'other'" in body["error"]
+    assert not Job.objects.filter(printer=printer).exists()
 
 
 def test_viewer_may_list_jobs_but_not_upload(keys, printer, make_job) -> None:
