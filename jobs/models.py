@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.db import models
+from django.utils import timezone
 
 from printers.models import Printer
+
+if TYPE_CHECKING:
+    from datetime import datetime
 
 
 class Job(models.Model):
@@ -73,6 +78,53 @@ class Job(models.Model):
             return 0.0
         return min(1.0, self.bytes_acked / self.size_bytes)
 
+    def elapsed_seconds(self) -> float | None:
+        """Seconds since the job started (until it finished); None before it starts."""
+        if self.started_at is None:
+            return None
+        end = self.finished_at or timezone.now()
+        return max(0.0, (end - self.started_at).total_seconds())
+
+    def remaining_seconds(self) -> float | None:
+        """A linear guess from elapsed time and progress, while the job runs."""
+        elapsed, share = self.elapsed_seconds(), self.progress
+        if elapsed is None or self.finished_at is not None or not 0 < share < 1:
+            return None
+        return elapsed / share * (1 - share)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The job as every client sees it (API, websockets): one shape everywhere.
+
+        `progress` is the percentage of the file's bytes the firmware acknowledged;
+        `elapsed` and `eta` are seconds (None when unknown).
+        """
+        elapsed, eta = self.elapsed_seconds(), self.remaining_seconds()
+
+        def when(value: datetime | None) -> str | None:
+            return value.isoformat() if value else None
+
+        return {
+            "id": self.pk,
+            "printer": self.printer.slug,
+            "name": self.name,
+            "state": self.state,
+            "message": self.message,
+            "size": self.size_bytes,
+            "lines": self.line_count,
+            "sha256": self.sha256,
+            "position": self.position,
+            "origin": self.origin,
+            "lines_sent": self.lines_sent,
+            "lines_acked": self.lines_acked,
+            "bytes_acked": self.bytes_acked,
+            "progress": round(self.progress * 100, 2),
+            "created": when(self.created_at),
+            "started": when(self.started_at),
+            "finished": when(self.finished_at),
+            "elapsed": None if elapsed is None else round(elapsed, 1),
+            "eta": None if eta is None else round(eta, 1),
+        }
+
 
 FINISHED_STATES = frozenset(
     {
@@ -122,3 +174,13 @@ class Upload(models.Model):
     def partial_path(self) -> Path:
         """Absolute path of the partial file."""
         return Path(settings.JOB_STORAGE_DIR) / self.path
+
+
+def running_job(printer_id: int) -> Job | None:
+    """The printer's printing or paused job, if any (the worker runs one at a time)."""
+    return (
+        Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES)
+        .select_related("printer")
+        .order_by("started_at", "pk")
+        .first()
+    )

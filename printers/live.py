@@ -27,9 +27,8 @@ from typing import TYPE_CHECKING, Any
 from channels.db import database_sync_to_async
 from channels.layers import InMemoryChannelLayer, get_channel_layer
 from django.db.models import Max, Min
-from django.utils import timezone
 
-from jobs.models import ACTIVE_STATES, Job
+from jobs.models import ACTIVE_STATES, Job, running_job
 from printers.models import Printer, ResponseLine
 
 if TYPE_CHECKING:
@@ -144,33 +143,12 @@ def state_of(printer: Printer) -> dict[str, Any]:
 
 
 def job_dict(job: Job) -> dict[str, Any]:
-    """A job's progress as clients receive it; `eta` in seconds when it can be guessed."""
-    progress = job.progress
-    eta = None
-    if job.state in ACTIVE_STATES and job.started_at and 0 < progress < 1:
-        elapsed = (timezone.now() - job.started_at).total_seconds()
-        eta = round(elapsed / progress * (1 - progress), 1)
-    return {
-        "id": job.pk,
-        "name": job.name,
-        "state": job.state,
-        "message": job.message,
-        "lines_sent": job.lines_sent,
-        "lines_acked": job.lines_acked,
-        "line_count": job.line_count,
-        "bytes_acked": job.bytes_acked,
-        "size_bytes": job.size_bytes,
-        "progress": round(progress, 4),
-        "eta": eta,
-    }
+    """A job's progress as clients receive it: the API's shape (`Job.as_dict`)."""
+    return job.as_dict()
 
 
 def current_job(printer_id: int) -> Job | None:
-    return (
-        Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES)
-        .order_by("started_at", "pk")
-        .first()
-    )
+    return running_job(printer_id)
 
 
 def snapshot(printer_id: int) -> dict[str, Any]:

@@ -10,10 +10,9 @@ from __future__ import annotations
 import inspect
 from typing import TYPE_CHECKING, Any
 
-from django.utils import timezone
 from ninja.errors import HttpError
 
-from jobs.models import ACTIVE_STATES, FINISHED_STATES, Job
+from jobs.models import FINISHED_STATES, Job, running_job
 from jobs.services import enqueue_upload, queue_job, reprint
 from printers.models import Printer
 from printhost.access import Forbidden
@@ -178,7 +177,7 @@ def print_job(caller: Caller, job: Job) -> Job:
 
 
 def active_job(printer: Printer) -> Job | None:
-    return Job.objects.filter(printer=printer, state__in=ACTIVE_STATES).first()
+    return running_job(printer.pk)
 
 
 def waits_for_bed(printer: Printer) -> bool:
@@ -187,7 +186,6 @@ def waits_for_bed(printer: Printer) -> bool:
 
 
 def elapsed_seconds(job: Job) -> int | None:
-    if job.started_at is None:
-        return None
-    end = job.finished_at or timezone.now()
-    return max(0, int((end - job.started_at).total_seconds()))
+    """Whole seconds since the job started (OctoPrint's `printTime`)."""
+    elapsed = job.elapsed_seconds()
+    return None if elapsed is None else int(elapsed)

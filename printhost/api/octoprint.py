@@ -447,8 +447,8 @@ def octoprint_job(request: HttpRequest, slug: str | None = None) -> JsonResponse
         if job.state != Job.State.STORED:
             completion = round(job.progress * 100, 2)
         print_time = elapsed_seconds(job)
-        if print_time is not None and job.progress > 0 and job.finished_at is None:
-            time_left = int(print_time * (1 - job.progress) / job.progress)
+        remaining = job.remaining_seconds()
+        time_left = None if remaining is None else int(remaining)
     state = _state(printer)["text"]
     return JsonResponse(
         {

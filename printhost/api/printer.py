@@ -34,14 +34,13 @@ from asgiref.sync import sync_to_async
 from django.conf import settings
 from django.db.models import Max
 from django.http import HttpRequest, HttpResponse, JsonResponse
-from django.utils import timezone
 from ninja import Router
 from ninja.errors import HttpError
 
 from jobs import services
 from jobs import uploads as sessions
 from jobs.gcode import BadGcode
-from jobs.models import ACTIVE_STATES, Job, Upload
+from jobs.models import ACTIVE_STATES, Job, Upload, running_job
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost import audit
 from printhost.access import Caller, Forbidden
@@ -71,29 +70,12 @@ VERSION = "0.1.0"
 
 
 def job_dict(job: Job) -> dict[str, Any]:
-    """One job as the API shows it; `progress` is a percentage of the bytes acked."""
-    return {
-        "id": job.pk,
-        "name": job.name,
-        "state": job.state,
-        "message": job.message,
-        "size": job.size_bytes,
-        "lines": job.line_count,
-        "sha256": job.sha256,
-        "position": job.position,
-        "origin": job.origin,
-        "lines_sent": job.lines_sent,
-        "lines_acked": job.lines_acked,
-        "bytes_acked": job.bytes_acked,
-        "progress": round(job.progress * 100, 2),
-        "created": job.created_at.isoformat() if job.created_at else None,
-        "started": job.started_at.isoformat() if job.started_at else None,
-        "finished": job.finished_at.isoformat() if job.finished_at else None,
-    }
+    """One job as the API shows it (the shape websockets use too)."""
+    return job.as_dict()
 
 
 def _active_job(printer: Printer) -> Job | None:
-    return Job.objects.filter(printer=printer, state__in=ACTIVE_STATES).first()
+    return running_job(printer.pk)
 
 
 def _job_word(printer: Printer, active: Job | None) -> str:
@@ -119,17 +101,8 @@ def printer_entry(printer: Printer) -> dict[str, Any]:
 
 
 def current_job(job: Job | None) -> dict[str, Any] | None:
-    """The running job with elapsed time and an ETA from elapsed / progress."""
-    if job is None:
-        return None
-    data = job_dict(job)
-    elapsed = (
-        (timezone.now() - job.started_at).total_seconds() if job.started_at else 0.0
-    )
-    share = job.progress
-    data["elapsed"] = round(elapsed, 1)
-    data["eta"] = round(elapsed / share - elapsed, 1) if 0 < share < 1 else None
-    return data
+    """The running job with its elapsed time and ETA."""
+    return None if job is None else job.as_dict()
 
 
 def printer_state(printer: Printer) -> dict[str, Any]:
@@ -738,11 +711,7 @@ def _temps(printer: Printer) -> dict[str, Any]:
 def _list_printer_entry(printer: Printer) -> dict[str, Any]:
     active = _active_job(printer)
     entry = printer_entry(printer)
-    elapsed = (
-        (timezone.now() - active.started_at).total_seconds()
-        if active and active.started_at
-        else 0
-    )
+    elapsed = (active.elapsed_seconds() if active else None) or 0
     return {
         **entry,
         "job": active.name if active else "none",

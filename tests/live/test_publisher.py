@@ -89,7 +89,7 @@ def test_job_progress_is_published_as_stored(
     event = receive()["event"]
     assert event["type"] == "job"
     assert (event["job"]["id"], event["job"]["lines_acked"]) == (job.pk, 1)
-    assert event["job"]["line_count"] == 2
+    assert event["job"]["lines"] == 2
 
 
 def test_nothing_is_published_without_a_cross_process_layer() -> None:
