@@ -47,6 +47,8 @@ ROUTER_MODULES: list[str] = [
     "keys",
     "config",
     "printer",
+    "host",
+    "repetier",
     "uploads",
 ]
 _register()

@@ -21,13 +21,13 @@ Seed calls:
   responses, 8 non-maskable messages).
 - `job/<slug>?a=...`: see `job()` below.
 
-Extras a host needs: `state`, `connect`, `disconnect`, `bedclear`, `emergency`, `queue`.
+Extras a host needs (`state`, `connect`, `disconnect`, `bedclear`, `emergency`,
+`queue`) are in `host.py`; Repetier-Server's own calls in `repetier.py`.
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
 from typing import TYPE_CHECKING, Any
 
 from asgiref.sync import sync_to_async
@@ -74,7 +74,7 @@ def job_dict(job: Job) -> dict[str, Any]:
     return job.as_dict()
 
 
-def _active_job(printer: Printer) -> Job | None:
+def active_job(printer: Printer) -> Job | None:
     return running_job(printer.pk)
 
 
@@ -89,7 +89,7 @@ def _job_word(printer: Printer, active: Job | None) -> str:
 
 def printer_entry(printer: Printer) -> dict[str, Any]:
     """The seed's list entry, plus `state` and `active` (enabled)."""
-    active = _active_job(printer)
+    active = active_job(printer)
     return {
         "name": printer.name,
         "slug": printer.slug,
@@ -107,7 +107,7 @@ def current_job(job: Job | None) -> dict[str, Any] | None:
 
 def printer_state(printer: Printer) -> dict[str, Any]:
     """Everything a host shows about a printer at a glance."""
-    active = _active_job(printer)
+    active = active_job(printer)
     status = printer.machine_status or {}
     queue = Job.objects.filter(printer=printer, state=Job.State.QUEUED)
     return {
@@ -245,7 +245,7 @@ def uploaded_file(request: HttpRequest) -> UploadedFile:
     return file
 
 
-def _job_of(printer: Printer, params: dict[str, str]) -> Job:
+def job_of(printer: Printer, params: dict[str, str]) -> Job:
     job_id = parse_int(params.get("id"), "id", default=-1, minimum=1)
     if job_id < 0:
         raise HttpError(400, "id is required")
@@ -255,12 +255,12 @@ def _job_of(printer: Printer, params: dict[str, str]) -> Job:
     return job
 
 
-def _action(
+def job_action(
     request: HttpRequest, printer: Printer, action: str, audit_name: str
 ) -> QueuedCommand:
     caller = caller_of(request)
     row = services.request_action(printer, action, origin=caller.origin)
-    audit.record(caller, audit_name, printer=printer, job=_active_job(printer))
+    audit.record(caller, audit_name, printer=printer, job=active_job(printer))
     return row
 
 
@@ -272,29 +272,6 @@ def printer_list(request: HttpRequest) -> HttpResponse:
     """The seed's printer list. No `error` key on success (PrusaSlicer needs that)."""
     printers = caller_of(request).printers(Role.VIEWER)
     return JsonResponse({"data": [printer_entry(p) for p in printers]})
-
-
-@router.get("/printer/info", summary="Server description (Repetier-Server's)")
-def printer_info(request: HttpRequest) -> HttpResponse:
-    """What Repetier clients test a connection with; `name` starts with "Repetier"."""
-    caller = caller_of(request)
-    printers = []
-    for printer in caller.printers(Role.VIEWER):
-        entry = printer_entry(printer)
-        printers.append({k: entry[k] for k in ("slug", "name", "online", "active")})
-        printers[-1]["job"] = entry["job"]
-    return JsonResponse(
-        {
-            "name": "Repetier-Server compatible printhost",
-            "software": "Repetier-Server",
-            "version": VERSION,
-            "variant": "printhost",
-            "servername": "printhost",
-            "serveruuid": "",
-            "apikey": "",
-            "printers": printers,
-        }
-    )
 
 
 @router.api_operation(["GET", "POST"], "/printer/send/{slug}", summary="Send a command")
@@ -457,16 +434,16 @@ def _job_control(
 ) -> HttpResponse:
     caller = caller_of(request)
     if action in ("pause", "resume", "abort"):
-        active = _active_job(printer)
+        active = active_job(printer)
         if active is None:
             raise HttpError(409, f"no job is printing on {printer.slug}")
         if action == "pause" and active.state == Job.State.PAUSED:
             raise HttpError(409, f"job {active.pk} is already paused")
         if action == "resume" and active.state != Job.State.PAUSED:
             raise HttpError(409, f"job {active.pk} is not paused")
-        _action(request, printer, action, f"job.{action}")
+        job_action(request, printer, action, f"job.{action}")
         return envelope(job_dict(active))
-    target = _job_of(printer, params)
+    target = job_of(printer, params)
     if action == "start":
         if not services.queue_job(target):
             raise HttpError(
@@ -577,246 +554,3 @@ def _chunked(
             return envelope({**session_dict(upload), "complete": False})
     job_row = finish_session(request, upload)
     return envelope({"id": upload.pk, "complete": True, "job": job_dict(job_row)})
-
-
-# -- host extras --------------------------------------------------------------------
-
-
-@router.get("/printer/state/{slug}", summary="Printer state, job, queue")
-def state(request: HttpRequest, slug: str) -> HttpResponse:
-    """State, temperatures, position, the running job with progress and ETA, the queue."""
-    return envelope(printer_state(printer_for(request, slug, Role.VIEWER)))
-
-
-@router.post("/printer/connect/{slug}", summary="Connect (or reconnect) the printer")
-def connect(request: HttpRequest, slug: str) -> HttpResponse:
-    printer = printer_for(request, slug, Role.OPERATOR)
-    row = _action(request, printer, QueuedCommand.Action.RECONNECT, "connect")
-    return envelope({"id": row.pk})
-
-
-@router.post("/printer/disconnect/{slug}", summary="Close the printer's port")
-def disconnect(request: HttpRequest, slug: str) -> HttpResponse:
-    printer = printer_for(request, slug, Role.OPERATOR)
-    row = _action(request, printer, QueuedCommand.Action.DISCONNECT, "disconnect")
-    return envelope({"id": row.pk})
-
-
-@router.post("/printer/bedclear/{slug}", summary="Confirm the bed is clear")
-def bedclear(request: HttpRequest, slug: str) -> HttpResponse:
-    """Leave `waitstart`: the next queued job may start (409 if not waiting)."""
-    printer = printer_for(request, slug, Role.OPERATOR)
-    if printer.state != Printer.State.WAITSTART:
-        raise HttpError(409, f"{printer.slug} is {printer.state}, not waiting for it")
-    row = _action(request, printer, QueuedCommand.Action.BED_CLEAR, "bed_clear")
-    return envelope({"id": row.pk})
-
-
-@router.post("/printer/emergency/{slug}", summary="Emergency stop")
-def emergency(request: HttpRequest, slug: str) -> HttpResponse:
-    """M112 (Marlin) or feed hold + reset (GRBL), ahead of everything queued."""
-    printer = printer_for(request, slug, Role.OPERATOR)
-    caller = caller_of(request)
-    row = services.emergency_stop(printer, origin=caller.origin)
-    audit.record(caller, "emergency", printer=printer)
-    return envelope({"id": row.pk})
-
-
-@router.post("/printer/queue/{slug}", summary="Reorder the queue")
-def queue(request: HttpRequest, slug: str) -> HttpResponse:
-    """JSON `{"order": [job ids]}` (those first, in order) or `{"id": n, "position": i}`.
-
-    `position` counts from 0 = the head of the queue. Only queued jobs move.
-    """
-    printer = printer_for(request, slug, Role.OPERATOR)
-    try:
-        body = json.loads(request.body or b"{}")
-    except ValueError:
-        raise HttpError(400, "the body must be JSON") from None
-    if not isinstance(body, dict):
-        raise HttpError(400, 'send {"order": [ids]} or {"id": n, "position": i}')
-    queued = list(
-        Job.objects.filter(printer=printer, state=Job.State.QUEUED)
-        .order_by("position", "id")
-        .values_list("pk", flat=True)
-    )
-    if "order" in body:
-        order = body["order"]
-        if not isinstance(order, list) or not all(
-            isinstance(i, int) and not isinstance(i, bool) for i in order
-        ):
-            raise HttpError(400, "order must be a list of job ids")
-    elif "id" in body and "position" in body:
-        job_id, position = body["id"], body["position"]
-        if not all(
-            isinstance(v, int) and not isinstance(v, bool) for v in (job_id, position)
-        ):
-            raise HttpError(400, "id and position must be integers")
-        if job_id not in queued:
-            raise HttpError(409, f"job {job_id} is not queued on {printer.slug}")
-        if position < 0:
-            raise HttpError(400, "position must be 0 or more")
-        order = [i for i in queued if i != job_id]
-        order.insert(min(position, len(order)), job_id)
-    else:
-        raise HttpError(400, 'send {"order": [ids]} or {"id": n, "position": i}')
-    try:
-        jobs = services.reorder_queue(printer, order)
-    except ValueError as error:
-        raise HttpError(409, str(error)) from None
-    audit.record(
-        caller_of(request),
-        "queue.reorder",
-        printer=printer,
-        detail=",".join(str(j.pk) for j in jobs),
-    )
-    return envelope([job_dict(j) for j in jobs])
-
-
-# -- Repetier-Server dialect --------------------------------------------------------
-
-
-@router.post("/printer/model/{slug}", summary="Upload a model (stored, not queued)")
-def model_upload(request: HttpRequest, slug: str) -> HttpResponse:
-    """PrusaSlicer's "upload": multipart `a=upload`, file part `filename`, `group`."""
-    params = request_params(request)
-    if params.get("a", "upload") != "upload":
-        raise HttpError(400, f"a must be upload, not {params.get('a')!r}")
-    printer = upload_target(request, slug)
-    stored = store_upload(
-        request,
-        printer,
-        uploaded_file(request),
-        name=params.get("name", ""),
-        queue=False,
-    )
-    return envelope(job_dict(stored))
-
-
-def _temps(printer: Printer) -> dict[str, Any]:
-    extruders, beds = [], []
-    for key, reading in sorted((printer.temperatures or {}).items()):
-        entry = {
-            "tempRead": reading.get("current", 0),
-            "tempSet": reading.get("target", 0),
-            "output": 0,
-        }
-        if key.upper().startswith("B"):
-            beds.append(entry)
-        elif key.upper().startswith("T"):
-            extruders.append(entry)
-    return {"extruder": extruders, "heatedBeds": beds, "numExtruder": len(extruders)}
-
-
-def _list_printer_entry(printer: Printer) -> dict[str, Any]:
-    active = _active_job(printer)
-    entry = printer_entry(printer)
-    elapsed = (active.elapsed_seconds() if active else None) or 0
-    return {
-        **entry,
-        "job": active.name if active else "none",
-        "jobid": active.pk if active else 0,
-        "done": round(active.progress * 100, 2) if active else 0,
-        "paused": bool(active and active.state == Job.State.PAUSED),
-        "printTime": 0,
-        "printedTimeComp": round(elapsed, 1),
-        "start": int(active.started_at.timestamp())
-        if active and active.started_at
-        else 0,
-    }
-
-
-REPETIER_CALLS = (
-    "listModelGroups",
-    "listPrinter",
-    "stateList",
-    "send",
-    "continueJob",
-    "stopJob",
-    "listJobs",
-    "getPrinterConfig",
-)
-
-
-@router.api_operation(
-    ["GET", "POST"], "/printer/api/{slug}", summary="Repetier-Server calls: a=..."
-)
-def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
-    """Repetier-Server's `api` call in its own answer shapes.
-
-    `a` and `data` (a JSON object) come from the query or a form / multipart body
-    (PrusaSlicer posts `a=listModelGroups` as a multipart form).
-    """
-    params = request_params(request)
-    call = params.get("a", "")
-    if call not in REPETIER_CALLS:
-        raise HttpError(
-            400, f"a must be one of {', '.join(REPETIER_CALLS)}, not {call!r}"
-        )
-    try:
-        data = json.loads(params.get("data") or "{}")
-    except ValueError:
-        raise HttpError(400, "data must be a JSON object") from None
-    if not isinstance(data, dict):
-        raise HttpError(400, "data must be a JSON object")
-    caller = caller_of(request)
-    if call == "listModelGroups":
-        printer_for(request, slug, Role.VIEWER)
-        return JsonResponse({"groupNames": ["#"], "ok": True})
-    if call == "listPrinter":
-        printer_for(request, slug, Role.VIEWER)
-        return JsonResponse(
-            [_list_printer_entry(p) for p in caller.printers(Role.VIEWER)], safe=False
-        )
-    if call == "stateList":
-        printer_for(request, slug, Role.VIEWER)
-        answer = {}
-        for p in caller.printers(Role.VIEWER):
-            status = p.machine_status or {}
-            answer[p.slug] = {
-                **_temps(p),
-                **{k: status.get(k) for k in ("x", "y", "z") if k in status},
-            }
-        return JsonResponse(answer)
-    if call == "listJobs":
-        printer = printer_for(request, slug, Role.VIEWER)
-        jobs = Job.objects.filter(printer=printer).order_by("position", "id")
-        return JsonResponse({"data": [job_dict(j) for j in jobs]})
-    if call == "getPrinterConfig":
-        printer = printer_for(request, slug, Role.VIEWER)
-        temps = _temps(printer)
-        return JsonResponse(
-            {
-                "general": {
-                    "name": printer.name,
-                    "slug": printer.slug,
-                    "firmwareName": printer.firmware_name
-                    or printer.get_firmware_display(),
-                    "baudrate": printer.baud,
-                    "device": printer.port,
-                },
-                "extruders": [{"num": i} for i in range(temps["numExtruder"])],
-                "heatedBed": bool(temps["heatedBeds"]),
-            }
-        )
-    printer = printer_for(request, slug, Role.OPERATOR)
-    if call == "send":
-        command = str(data.get("cmd", "")).strip()
-        if not command:
-            raise HttpError(400, 'send needs data={"cmd": "..."}')
-        if command.split()[0].upper() not in services.EMERGENCY_COMMANDS:
-            require_online(printer)
-        try:
-            services.send_command(printer, command, origin=caller.origin)
-        except ValueError as error:
-            raise HttpError(400, str(error)) from None
-        audit.record(caller, "command", printer=printer, detail=command)
-        return JsonResponse({})
-    active = _active_job(printer)
-    if active is None:
-        raise HttpError(409, f"no job is printing on {printer.slug}")
-    if call == "continueJob":
-        _action(request, printer, QueuedCommand.Action.RESUME, "job.resume")
-    else:  # stopJob
-        _action(request, printer, QueuedCommand.Action.ABORT, "job.abort")
-    return JsonResponse({})
