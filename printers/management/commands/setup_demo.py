@@ -12,6 +12,7 @@ from django.core.management.base import BaseCommand
 
 from jobs.services import storage_dir
 from printers.models import Printer
+from printhost.access import issue_key
 
 
 def demo_gcode(size: float = 40.0, loops: int = 10) -> str:
@@ -59,5 +60,7 @@ class Command(BaseCommand):
             self.stdout.write("demo admin exists (user: admin)")
             return
         password = secrets.token_urlsafe(9)
-        users.objects.create_superuser("admin", "admin@localhost", password)
+        admin = users.objects.create_superuser("admin", "admin@localhost", password)
         self.stdout.write(f"demo admin created: user admin, password {password}")
+        _, key = issue_key(admin, "demo (setup_demo)")
+        self.stdout.write(f"demo API key (for curl and slicers; shown once): {key}")
