@@ -23,6 +23,11 @@ def main() -> int:
     data_dir = Path(tempfile.mkdtemp(prefix="printhost-bench-"))
     os.environ["PRINTHOST_DATA_DIR"] = str(data_dir)
     os.environ.pop("DATABASE_URL", None)
+    # The live-feed pair publishes every response batch to a real Redis.
+    os.environ.pop("REDIS_URL", None)
+    if case.get("redis"):
+        os.environ["REDIS_URL"] = case["redis"]
+        os.environ["PRINTHOST_CHANNEL_PREFIX"] = "printhost-bench"
     os.environ.setdefault("DJANGO_SETTINGS_MODULE", "printhost.settings")
     sys.path.insert(0, str(ROOT))
     import django

@@ -160,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{result['name']}: link use {result.get('link_use')}", flush=True)
     if not options.only:
         results += logging_cost(options.max_seconds)
+        results += live_feed_cost(options.max_seconds)
         results += eight_at_once(options.max_seconds)
     return finish(results, Path(options.out))
 
@@ -175,6 +176,30 @@ def logging_cost(max_seconds: float) -> list[dict]:
     on, off = pair
     if "error" not in on and "error" not in off:
         print(f"logging cost: {on['lines_per_s']} lines/s with the log, "
+              f"{off['lines_per_s']} without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
+    return pair
+
+
+def live_feed_cost(
+    max_seconds: float, redis: str = "redis://127.0.0.1:6379/0"
+) -> list[dict]:
+    """The same stream with the live feed published to Redis and without Redis."""
+    try:
+        import redis as redis_client
+
+        redis_client.Redis.from_url(redis, socket_connect_timeout=2).ping()
+    except Exception as error:
+        print(f"live feed cost: skipped, no Redis at {redis} ({error})")
+        return []
+    pair = []
+    for url in (redis, ""):
+        case = _case("segments", 20000, "marlin", "advanced_ok", 250000, 0, max_seconds)
+        case["name"] = f"live-{'on' if url else 'off'}/marlin-advanced_ok/250000/0ms"
+        case["redis"] = url
+        pair.append({**run(case), "group": "live-feed"})
+    on, off = pair
+    if "error" not in on and "error" not in off:
+        print(f"live feed cost: {on['lines_per_s']} lines/s publishing to Redis, "
               f"{off['lines_per_s']} without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
     return pair
 

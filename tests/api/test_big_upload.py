@@ -106,4 +106,7 @@ def test_one_gigabyte_upload_keeps_daphne_under_150_mb(tmp_path: Path) -> None:
     assert job["size"] == SIZE
     assert job["sha256"] == digest.hexdigest()
     assert job["state"] == "stored"
+    print(
+        f"daphne peak RSS {peak / 1024**2:.0f} MB for a {SIZE / 1024**3:.2f} GiB upload"
+    )
     assert peak < RSS_LIMIT, f"daphne peaked at {peak / 1024**2:.0f} MB"
