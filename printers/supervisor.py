@@ -116,7 +116,7 @@ class Supervisor:
         wanted: dict[str, list[str]] = {}
         if self.serve_web:
             wanted["daphne"] = [
-                python, "-m", "daphne", "-b", self.bind, "-p", str(self.port),
+                python, "-m", "printhost.serve", "-b", self.bind, "-p", str(self.port),
                 "printhost.asgi:application",
             ]  # fmt: skip
         printers = list(Printer.objects.filter(enabled=True).order_by("pk"))

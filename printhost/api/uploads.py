@@ -11,10 +11,10 @@
    offset (also as the `Upload-Offset` header): continue from there.
 4. `DELETE` abandons a session. Sessions untouched for a day are removed.
 
-Why pieces: daphne hands a request's whole body to the application at once, so one
-huge request costs its size in server memory; PATCHes of a few MB keep the server
-small whatever the file's size. Each PATCH body is read with `request.read()` in
-chunks and appended to the partial file, never loaded whole.
+Why pieces: a connection that drops after 900 MB of a 1 GB file should not cost the
+whole file again. Each PATCH body is read with `request.read()` in chunks and appended
+to the partial file, never loaded whole (and `printhost.serve` keeps request bodies on
+disk while they wait for Django, so neither form costs the file's size in memory).
 """
 
 from __future__ import annotations
