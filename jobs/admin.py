@@ -8,6 +8,7 @@ from django.contrib import admin, messages
 
 from jobs.models import ACTIVE_STATES, Job
 from jobs.services import delete_job_file, request_action
+from printers.models import Printer
 
 if TYPE_CHECKING:
     from django.db.models import QuerySet
@@ -29,8 +30,9 @@ class JobAdmin(admin.ModelAdmin):
         "created_at",
         "finished_at",
     ]
-    list_filter = ["state", "printer"]
-    search_fields = ["name", "sha256", "origin"]
+    list_filter = ["state", "printer", "created_at"]
+    search_fields = ["name", "sha256", "origin", "uploaded_by__username"]
+    date_hierarchy = "created_at"
     readonly_fields = [
         "file",
         "size_bytes",
@@ -44,7 +46,7 @@ class JobAdmin(admin.ModelAdmin):
         "state",
         "message",
     ]
-    actions = ["abort", "requeue", "delete_with_files"]
+    actions = ["abort", "requeue", "mark_bed_clear", "delete_with_files"]
 
     @admin.display(description="progress")
     def progress_percent(self, job: Job) -> str:
@@ -72,6 +74,16 @@ class JobAdmin(admin.ModelAdmin):
             finished_at=None,
         )
         messages.info(request, f"{count} job(s) queued again")
+
+    @admin.action(description="The bed is clear: their printers start the next job")
+    def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
+        caller = admin_caller(request)
+        printers = {job.printer for job in queryset.select_related("printer")}
+        waiting = [p for p in printers if p.state == Printer.State.WAITSTART]
+        for printer in waiting:
+            request_action(printer, "bed_clear", origin=caller.origin)
+            record(caller, "bed_clear", printer=printer)
+        messages.info(request, f"asked {len(waiting)} waiting printer(s) to start")
 
     @admin.action(description="Delete with their files")
     def delete_with_files(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:

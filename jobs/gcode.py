@@ -55,16 +55,21 @@ def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
             index += 1
 
 
-def inspect_file(path: Path, *, max_command_length: int = 0) -> FileFacts:
+def inspect_file(
+    path: Path, *, max_command_length: int = 0, name: str = ""
+) -> FileFacts:
     """Check that *path* is a printable G-code file and measure it.
+
+    Errors name the file *name* (the name the user gave it), else the path's name.
 
     1. Read it in chunks, hashing as we go (SHA-256).
     2. Reject NUL bytes and non-ASCII control bytes: a binary file.
     3. Count commands; reject a command longer than *max_command_length* (if set).
     4. Reject a file with no command at all.
     """
+    name = name or path.name
     if not path.is_file():
-        raise BadGcode(f"{path.name}: no such file")
+        raise BadGcode(f"{name}: no such file")
     digest = hashlib.sha256()
     size = commands = longest = 0
     number = 0
@@ -73,7 +78,7 @@ def inspect_file(path: Path, *, max_command_length: int = 0) -> FileFacts:
             number += 1
             size += len(raw)
             digest.update(raw)
-            _check_text(raw, number, path.name)
+            _check_text(raw, number, name)
             text = clean_line(raw.decode("ascii", "replace"))
             if not text:
                 continue
@@ -81,11 +86,11 @@ def inspect_file(path: Path, *, max_command_length: int = 0) -> FileFacts:
             longest = max(longest, len(text))
             if max_command_length and len(text) > max_command_length:
                 raise BadGcode(
-                    f"{path.name} line {number}: command is {len(text)} characters, "
+                    f"{name} line {number}: command is {len(text)} characters, "
                     f"the firmware takes at most {max_command_length}: {text[:40]!r}..."
                 )
     if commands == 0:
-        raise BadGcode(f"{path.name}: the file holds no G-code command")
+        raise BadGcode(f"{name}: the file holds no G-code command")
     return FileFacts(size, commands, digest.hexdigest(), longest)
 
 

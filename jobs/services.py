@@ -72,7 +72,7 @@ def enqueue_job(
             f"{name}: {size} bytes is over the limit of "
             f"{settings.PRINTHOST_MAX_JOB_BYTES} bytes"
         )
-    facts = inspect_file(source, max_command_length=limit)
+    facts = inspect_file(source, max_command_length=limit, name=name)
     target = storage_dir(printer) / f"{uuid.uuid4().hex[:8]}-{name}"
     if move:
         shutil.move(source, target)

@@ -206,3 +206,26 @@ class ResponseLine(models.Model):
 
     def __str__(self) -> str:
         return f"{self.seq}: {self.text}"
+
+
+class TemperatureSample(models.Model):
+    """One temperature reading of a printer, kept for a day: the printer page's chart.
+
+    The worker writes one when it saves temperatures, at most every few seconds
+    (`printers/worker/status.py`), and prunes those older than a day.
+    """
+
+    printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
+    time = models.DateTimeField()
+    temperatures = models.JSONField(default=dict)
+
+    class Meta:
+        ordering = ["printer", "time"]
+        indexes = [
+            # Used by GET /printer/temperatures/<slug> (a time range of one printer)
+            # and by the worker's pruning.
+            models.Index(fields=["printer", "time"], name="temperaturesample_time")
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.printer_id} {self.time:%H:%M:%S}"

@@ -1,18 +1,27 @@
-"""Top-level URL map: the admin, login, and the API (every path the slicers call)."""
+"""Top-level URL map: pages, admin, login, static files, and the API (the slicers' paths)."""
 
 from __future__ import annotations
 
 from django.contrib import admin
 from django.contrib.auth import views as auth_views
-from django.urls import path
-from django.views.generic import RedirectView
+from django.contrib.staticfiles.views import serve as serve_static
+from django.urls import path, re_path
 
+from printhost import pages
 from printhost.api import api
+
+handler403 = "printhost.pages.denied"
 
 urlpatterns = [
     path("admin/", admin.site.urls),
     path("accounts/login/", auth_views.LoginView.as_view(), name="login"),
     path("accounts/logout/", auth_views.LogoutView.as_view(), name="logout"),
-    path("", RedirectView.as_view(url="/admin/", permanent=False)),
+    path("", pages.dashboard, name="dashboard"),
+    path("printers/<slug:slug>/", pages.printer_page, name="printer"),
+    path("jobs/<int:job_id>/", pages.job_page, name="job"),
+    path("account/", pages.account, name="account"),
+    # printhost runs without a front web server: daphne serves the few static
+    # files itself, found by the staticfiles finders (no collectstatic step).
+    re_path(r"^static/(?P<path>.+)$", serve_static, {"insecure": True}),
     path("", api.urls),
 ]

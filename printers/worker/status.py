@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Any
 
 from django.utils import timezone
 
 from printers import live
-from printers.models import Printer
+from printers.models import Printer, TemperatureSample
 
 #: Temperatures and machine status are saved at most this often (s).
 SAVE_SECONDS = 1.0
+#: A temperature sample for the chart is written at most this often (s).
+SAMPLE_SECONDS = 5.0
+#: Samples older than this are deleted, checked every PRUNE_SECONDS.
+SAMPLE_KEEP = timedelta(hours=24)
+PRUNE_SECONDS = 600.0
 
 
 class PrinterStatus:
@@ -24,6 +30,8 @@ class PrinterStatus:
         self._dirty: set[str] = set()
         self._saved_state: tuple[str, str] | None = None
         self._save_at = 0.0
+        self._sample_at: float | None = None
+        self._prune_at: float | None = None
 
     def set_state(self, state: str, message: str = "") -> bool:
         """Change state (saved at the next save); True if it changed."""
@@ -50,6 +58,27 @@ class PrinterStatus:
         )
         Printer.objects.filter(pk=self.printer_id).update(**values)
         live.publisher().status(self.printer_id, values)
+        if "temperatures" in values:
+            self.sample(now, values["temperatures"])
         self._dirty.clear()
         self._saved_state = (self.state, self.message)
         self._save_at = now + SAVE_SECONDS
+
+    def sample(self, now: float, temperatures: dict[str, Any]) -> bool:
+        """Keep a reading for the chart, at most every SAMPLE_SECONDS; True if written.
+
+        Old samples are pruned now and then, so the table holds about a day.
+        """
+        if not temperatures or (self._sample_at is not None and now < self._sample_at):
+            return False
+        at = timezone.now()
+        TemperatureSample.objects.create(
+            printer_id=self.printer_id, time=at, temperatures=temperatures
+        )
+        self._sample_at = now + SAMPLE_SECONDS
+        if self._prune_at is None or now >= self._prune_at:
+            TemperatureSample.objects.filter(
+                printer_id=self.printer_id, time__lt=at - SAMPLE_KEEP
+            ).delete()
+            self._prune_at = now + PRUNE_SECONDS
+        return True

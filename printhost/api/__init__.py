@@ -50,5 +50,6 @@ ROUTER_MODULES: list[str] = [
     "host",
     "repetier",
     "uploads",
+    "history",
 ]
 _register()

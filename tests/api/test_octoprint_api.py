@@ -159,7 +159,7 @@ def test_binary_upload_is_refused_with_a_reason(
     binary = SimpleUploadedFile("model.gcode", b"\x00\x01\x02PK\x03\x04" * 100)
     reply = upload(client, users["op"], file=binary, print="true")
     assert reply.status_code in (400, 415)
-    assert reply.json()["error"]
+    assert reply.json()["error"].startswith("model.gcode line 1: ")
     assert not Job.objects.exists()
 
 

@@ -195,7 +195,9 @@ def test_job_upload_autostart_minus_one_queues_only_an_empty_queue(
 def test_job_upload_of_a_binary_file_is_400_and_stores_nothing(keys, printer) -> None:
     status, body = _upload(keys(), text="G28\n\x00\x01\x02binary")
     assert status == 400
-    assert body["error"]
+    # The error names the file the user sent, not the server's temporary file.
+    assert body["error"].startswith("part.gcode line 2: ")
+    assert "binary file" in body["error"]
     assert not Job.objects.exists()
 
 

@@ -100,6 +100,7 @@ ENDPOINTS = [
     ep("GET", "/printer/job/p?a=pause", OPERATOR),
     ep("POST", "/printer/job/p?a=upload", OPERATOR, body="file"),
     ep("GET", "/printer/state/p", VIEWER),
+    ep("GET", "/printer/temperatures/p", VIEWER),
     ep("POST", "/printer/connect/p", OPERATOR),
     ep("POST", "/printer/disconnect/p", OPERATOR),
     ep("POST", "/printer/bedclear/p", OPERATOR),

@@ -1,0 +1,169 @@
+"""The browser pages: dashboard, printer, job, account.
+
+Views are thin: they check the role, read what the page shows first and render it,
+so a page is useful before its script runs. Every change a page makes goes through
+the JSON API with `fetch` (the same code path slicers and hosts use), never here.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from django.contrib.auth.decorators import login_required
+from django.db.models import Max
+from django.shortcuts import get_object_or_404, render
+
+from jobs.models import FINISHED_STATES, Job
+from printers.models import Printer, ResponseLine
+from printhost.access import Caller
+from printhost.api.printer import printer_state
+from printhost.models import ApiKey, Role
+
+if TYPE_CHECKING:
+    from django.http import HttpRequest, HttpResponse
+
+#: Response lines rendered with the printer page; the websocket sends the rest.
+TERMINAL_LINES = 200
+#: Finished jobs listed in a printer's queue panel (newest first after the queue).
+FINISHED_SHOWN = 20
+
+
+def clock(seconds: float | None) -> str:
+    """Seconds as `m:ss` or `h:mm:ss`; a dash when unknown."""
+    if seconds is None:
+        return "—"
+    total = max(0, int(seconds))
+    hours, rest = divmod(total, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+def temps_text(temperatures: dict[str, Any] | None) -> str:
+    """`T0 205/210 °C · B 60/60 °C`: current/target of each heater."""
+    parts = []
+    for name, reading in (temperatures or {}).items():
+        if not isinstance(reading, dict):
+            continue
+        current = reading.get("current")
+        target = reading.get("target")
+        now = "—" if current is None else f"{current:.0f}"
+        goal = "—" if target is None else f"{target:.0f}"
+        parts.append(f"{name} {now}/{goal} °C")
+    return " · ".join(parts) or "—"
+
+
+def state_label(state: str) -> str:
+    """The words a person reads for a printer state."""
+    try:
+        return Printer.State(state).label
+    except ValueError:
+        return state
+
+
+def caller_of_page(request: HttpRequest) -> Caller:
+    """The logged-in browser user as an API caller (no key: the session)."""
+    return Caller(
+        client="http", user=request.user, address=request.META.get("REMOTE_ADDR", "")
+    )
+
+
+def forbidden(request: HttpRequest, message: str) -> HttpResponse:
+    """The styled 403 page."""
+    return render(request, "403.html", {"message": message}, status=403)
+
+
+def card(printer: Printer, caller: Caller) -> dict[str, Any]:
+    """What a printer card or the printer page shows first."""
+    state = printer_state(printer)
+    job = state["job"]
+    return {
+        "printer": printer,
+        "state": state,
+        "state_label": state_label(printer.state),
+        "job": job,
+        "elapsed": clock(job["elapsed"] if job else None),
+        "remaining": clock(job["eta"] if job else None),
+        "temps": temps_text(printer.temperatures),
+        "operator": caller.can(printer, Role.OPERATOR),
+        "admin": caller.can(printer, Role.ADMIN),
+    }
+
+
+@login_required
+def dashboard(request: HttpRequest) -> HttpResponse:
+    """Every printer the user may view, as a card."""
+    caller = caller_of_page(request)
+    cards = [card(p, caller) for p in caller.printers(Role.VIEWER)]
+    return render(request, "dashboard.html", {"cards": cards})
+
+
+@login_required
+def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
+    """One printer: state, job, terminal, queue, chart, controls, connection."""
+    printer = get_object_or_404(Printer, slug=slug)
+    caller = caller_of_page(request)
+    if not caller.can(printer, Role.VIEWER):
+        return forbidden(request, f"viewer role needed on printer {slug!r}")
+    lines = list(
+        ResponseLine.objects.filter(printer=printer).order_by("-seq")[:TERMINAL_LINES]
+    )
+    lines.reverse()
+    newest = ResponseLine.objects.filter(printer=printer).aggregate(m=Max("seq"))["m"]
+    queue = list(
+        Job.objects.filter(printer=printer)
+        .exclude(state__in=FINISHED_STATES)
+        .order_by("position", "id")
+    )
+    finished = list(
+        Job.objects.filter(printer=printer, state__in=FINISHED_STATES).order_by("-id")[
+            :FINISHED_SHOWN
+        ]
+    )
+    context = card(printer, caller) | {
+        "lines": lines,
+        "last_id": newest or 0,
+        "jobs": [j.as_dict() for j in queue + finished],
+        "grbl": printer.is_grbl,
+        "steps": ["0.1", "1", "10", "100"],
+    }
+    return render(request, "printer.html", context)
+
+
+@login_required
+def job_page(request: HttpRequest, job_id: int) -> HttpResponse:
+    """One job: file facts, progress, and every run of the same file on that printer."""
+    job = get_object_or_404(
+        Job.objects.select_related("printer", "uploaded_by"), pk=job_id
+    )
+    caller = caller_of_page(request)
+    if not caller.can(job.printer, Role.VIEWER):
+        return forbidden(request, f"viewer role needed on printer {job.printer.slug!r}")
+    runs = Job.objects.filter(printer=job.printer, sha256=job.sha256).order_by("-id")
+    return render(
+        request,
+        "job.html",
+        {
+            "job": job,
+            "data": job.as_dict(),
+            "runs": runs,
+            "elapsed": clock(job.elapsed_seconds()),
+            "remaining": clock(job.remaining_seconds()),
+        },
+    )
+
+
+@login_required
+def account(request: HttpRequest) -> HttpResponse:
+    """The user's API keys and the app-key requests waiting for a decision."""
+    caller = caller_of_page(request)
+    keys = ApiKey.objects.filter(user=request.user).select_related("printer")
+    return render(
+        request,
+        "account.html",
+        {"keys": keys.order_by("-id"), "printers": caller.printers(Role.VIEWER)},
+    )
+
+
+def denied(request: HttpRequest, exception: Exception | None = None) -> HttpResponse:
+    """handler403: Django's own refusals get the styled page too."""
+    return forbidden(request, str(exception or "") or "you may not see this page")

@@ -1,0 +1,71 @@
+// Dashboard: every printer card, live through /ws/printers/, with its buttons.
+import { api, clearError, liveFeed, showError, showJob, showState, tempsText } from "./api.js";
+
+const cards = new Map();
+for (const card of document.querySelectorAll("[data-test=printer-card]")) {
+  cards.set(card.dataset.printer, card);
+}
+const lastIds = {};
+
+function setState(card, state) {
+  card.dataset.state = state;
+  showState(card.querySelector("[data-test=state]"), state);
+  const bedClear = card.querySelector("[data-test=bed-clear]");
+  if (bedClear) bedClear.hidden = state !== "waitstart";
+}
+
+function onMessage(message) {
+  if (message.type === "error") {
+    showError(message.message);
+    return;
+  }
+  const card = cards.get(message.printer);
+  if (!card) return;
+  switch (message.type) {
+    case "hello":
+      lastIds[message.printer] = message.last;
+      setState(card, message.state);
+      card.querySelector("[data-test=temps]").textContent = tempsText(message.temperatures);
+      showJob(card, message.job);
+      break;
+    case "state":
+      setState(card, message.state);
+      break;
+    case "temperatures":
+      card.querySelector("[data-test=temps]").textContent = tempsText(message.temperatures);
+      break;
+    case "job":
+      showJob(card, message.job);
+      break;
+    case "lines":
+      lastIds[message.printer] = message.lines[message.lines.length - 1].id;
+      break;
+    default:
+      break;
+  }
+}
+
+if (cards.size) {
+  // The dashboard shows no log lines: hide every kind but the non-maskable one.
+  const params = () => {
+    const query = new URLSearchParams({ filter: "7" });
+    for (const [slug, id] of Object.entries(lastIds)) query.set(`last.${slug}`, id);
+    return query.toString();
+  };
+  liveFeed("/ws/printers/", params, onMessage);
+}
+
+document.addEventListener("click", async (event) => {
+  const button = event.target.closest("button[data-test]");
+  const card = button?.closest("[data-test=printer-card]");
+  if (!card) return;
+  const slug = encodeURIComponent(card.dataset.printer);
+  const test = button.dataset.test;
+  if (test !== "estop" && test !== "bed-clear") return;
+  clearError();
+  button.disabled = true;
+  const path = test === "estop" ? "emergency" : "bedclear";
+  const done = await api("POST", `/printer/${path}/${slug}`);
+  button.disabled = false;
+  if (done && test === "bed-clear") button.hidden = true;
+});
