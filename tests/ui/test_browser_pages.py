@@ -240,3 +240,67 @@ def test_a_binary_upload_shows_the_api_message_and_stores_nothing(
     expect(error).to_be_visible()
     expect(error).to_contain_text("binary")
     assert live.job_ids(MINE) == before
+
+
+#: Text elements whose colour contrast with their background is under WCAG AA
+#: (4.5:1, or 3:1 for large text). Disabled controls are exempt, as WCAG allows.
+LOW_CONTRAST = """() => {
+  const rgb = (css) => (css.match(/[\\d.]+/g) || []).map(Number);
+  const lum = ([r, g, b]) => {
+    const f = (c) => { c /= 255; return c <= 0.03928 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4; };
+    return 0.2126 * f(r) + 0.7152 * f(g) + 0.0722 * f(b);
+  };
+  const background = (el) => {
+    for (let node = el; node; node = node.parentElement) {
+      const c = rgb(getComputedStyle(node).backgroundColor);
+      if (c.length === 3 || (c.length === 4 && c[3] > 0.5)) return c.slice(0, 3);
+    }
+    return matchMedia('(prefers-color-scheme: dark)').matches ? [0, 0, 0] : [255, 255, 255];
+  };
+  const low = [];
+  for (const el of document.querySelectorAll('body *')) {
+    const own = [...el.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim());
+    if (!own || el.getClientRects().length === 0 || el.closest(':disabled')) continue;
+    const style = getComputedStyle(el);
+    if (style.visibility === 'hidden' || Number(style.opacity) === 0) continue;
+    const a = lum(rgb(style.color)), b = lum(background(el));
+    const ratio = (Math.max(a, b) + 0.05) / (Math.min(a, b) + 0.05);
+    const size = parseFloat(style.fontSize), bold = Number(style.fontWeight) >= 700;
+    const need = size >= 24 || (bold && size >= 18.66) ? 3 : 4.5;
+    if (ratio < need) low.push(`${el.tagName} "${el.textContent.trim().slice(0, 25)}" ${ratio.toFixed(2)}`);
+  }
+  return low;
+}"""
+
+
+@pytest.mark.parametrize("scheme", ["light", "dark"])
+@pytest.mark.parametrize("name", ["login", "dashboard", "printer", "job", "account"])
+def test_text_is_readable_in_light_and_dark_mode(
+    name: str, scheme: str, live: LiveHost, job_id: int, open_tab: Callable[..., Tab]
+) -> None:
+    tab = open_tab(live.url, "tablet")
+    tab.page.emulate_media(color_scheme=scheme)
+    if name != "login":
+        log_in(tab, OPERATOR)
+    tab.go(page_path(name, job_id))
+    tab.page.wait_for_load_state("networkidle")
+    low = tab.page.evaluate(LOW_CONTRAST)
+    assert not low, f"{name} ({scheme}): text under WCAG AA contrast: {low}"
+
+
+def test_a_command_to_an_offline_printer_says_so_in_the_page(
+    live: LiveHost, open_tab: Callable[..., Tab]
+) -> None:
+    tab = open_tab(live.url, "phone")
+    # Chromium logs the refused request itself; that line is expected.
+    tab.allow_console(
+        r"Failed to load resource: the server responded with a status of 409"
+    )
+    log_in(tab, OPERATOR)
+    tab.go(f"/printers/{OTHER}/")
+    page = tab.page
+    page.fill("[data-test=command]", "M105")
+    page.locator("[data-test=send]").click()
+    error = page.locator("[data-test=error]")
+    expect(error).to_be_visible()
+    expect(error).to_contain_text("offline")
