@@ -165,25 +165,36 @@ def main(argv: list[str] | None = None) -> int:
     return finish(results, Path(options.out))
 
 
-def logging_cost(max_seconds: float) -> list[dict]:
-    """The same stream with the response log on and off: logging must not slow it."""
+def on_off_pair(
+    group: str,
+    what: str,
+    setting: str,
+    values: tuple[object, object],
+    max_seconds: float,
+) -> list[dict]:
+    """The same Marlin stream run twice, *setting* on then off; prints the ratio."""
     pair = []
-    for log in (True, False):
+    for value, label in zip(values, ("on", "off"), strict=True):
         case = _case("segments", 20000, "marlin", "advanced_ok", 250000, 0, max_seconds)
-        case["name"] = f"log-{'on' if log else 'off'}/marlin-advanced_ok/250000/0ms"
-        case["log"] = log
-        pair.append({**run(case), "group": "logging"})
+        case["name"] = f"{group}-{label}/marlin-advanced_ok/250000/0ms"
+        case[setting] = value
+        pair.append({**run(case), "group": group})
     on, off = pair
     if "error" not in on and "error" not in off:
-        print(f"logging cost: {on['lines_per_s']} lines/s with the log, "
-              f"{off['lines_per_s']} without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
+        print(f"{what}: {on['lines_per_s']} lines/s with it, {off['lines_per_s']} "
+              f"without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
     return pair
+
+
+def logging_cost(max_seconds: float) -> list[dict]:
+    """The response log on and off: logging must not slow the stream."""
+    return on_off_pair("log", "logging cost", "log", (True, False), max_seconds)
 
 
 def live_feed_cost(
     max_seconds: float, redis: str = "redis://127.0.0.1:6379/0"
 ) -> list[dict]:
-    """The same stream with the live feed published to Redis and without Redis."""
+    """The live feed published to Redis, and no Redis: publishing must not slow it."""
     try:
         import redis as redis_client
 
@@ -191,17 +202,7 @@ def live_feed_cost(
     except Exception as error:
         print(f"live feed cost: skipped, no Redis at {redis} ({error})")
         return []
-    pair = []
-    for url in (redis, ""):
-        case = _case("segments", 20000, "marlin", "advanced_ok", 250000, 0, max_seconds)
-        case["name"] = f"live-{'on' if url else 'off'}/marlin-advanced_ok/250000/0ms"
-        case["redis"] = url
-        pair.append({**run(case), "group": "live-feed"})
-    on, off = pair
-    if "error" not in on and "error" not in off:
-        print(f"live feed cost: {on['lines_per_s']} lines/s publishing to Redis, "
-              f"{off['lines_per_s']} without (ratio {on['lines_per_s'] / off['lines_per_s']:.3f})")  # fmt: skip
-    return pair
+    return on_off_pair("live", "live feed cost", "redis", (redis, ""), max_seconds)
 
 
 def eight_at_once(max_seconds: float) -> list[dict]:
