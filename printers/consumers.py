@@ -134,6 +134,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             return
         for printer in printers:
             await self.subscribe(printer, starts[printer.pk])
+        self.spawn(self.reconcile())
 
     def printers_to_watch(self) -> list[Printer]:
         raise NotImplementedError
@@ -212,6 +213,17 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             await self.send_lines(feed, feed.cursor.take(lines))
             if len(lines) < live.PAGE_LINES:
                 return
+
+    async def reconcile(self) -> None:
+        """Now and then, send what the log holds past each cursor.
+
+        A live message that never came (the channel layer is lossy) would otherwise
+        leave the client behind until the next message or a reconnect.
+        """
+        while True:
+            await asyncio.sleep(live.RECONCILE_SECONDS)
+            for feed in list(self.feeds.values()):
+                await self.catch_up(feed, None)
 
     async def send_lines(self, feed: Feed, lines: list[live.Line]) -> None:
         if lines:

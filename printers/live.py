@@ -39,6 +39,9 @@ logger = logging.getLogger("printhost.live")
 
 #: How often the in-process relay looks for new rows (s).
 RELAY_SECONDS = 0.25
+#: Every client also re-reads the log this often (s): the channel layer may drop a
+#: message (a Redis restart, a full channel); the database never does.
+RECONCILE_SECONDS = 5.0
 #: Lines read from the database per query (catch-up pages, relay polls).
 PAGE_LINES = 2000
 #: The non-maskable kind: no filter hides it (errors, resets, printhost's notes).

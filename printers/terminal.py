@@ -116,7 +116,7 @@ class Session:
             self.cursor = live.LineCursor(last)
             output = asyncio.ensure_future(self.output(layer, channel))
             commands = asyncio.ensure_future(self.commands())
-            self.tasks |= {output, commands}
+            self.tasks |= {output, commands, asyncio.ensure_future(self.reconcile())}
             done, _ = await asyncio.wait(
                 {output, commands}, return_when=asyncio.FIRST_COMPLETED
             )
@@ -140,11 +140,17 @@ class Session:
                 await self.catch_up(gap[1])
             await self.write_lines(self.cursor.take(event["lines"]))
 
-    async def catch_up(self, upto: int) -> None:
+    async def reconcile(self) -> None:
+        """Now and then, write what the log holds past the cursor (a lost message)."""
+        while True:
+            await asyncio.sleep(live.RECONCILE_SECONDS)
+            await self.catch_up(None)
+
+    async def catch_up(self, upto: int | None) -> None:
         read = database_sync_to_async(live.lines_after)
         while True:
             lines = await read(self.printer.pk, self.cursor.last, upto)
-            first = lines[0]["id"] if lines else upto + 1
+            first = lines[0]["id"] if lines else (None if upto is None else upto + 1)
             if self.cursor.truncated(first) is not None:
                 await self.say(f"// printhost: lines before {first} were not kept")
             await self.write_lines(self.cursor.take(lines))

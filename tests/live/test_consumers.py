@@ -14,6 +14,7 @@ from channels.testing import WebsocketCommunicator
 from django.contrib.auth import get_user_model
 from django.utils import timezone
 
+from printers import live
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost.access import issue_key
 from printhost.asgi import application
@@ -411,3 +412,27 @@ def test_the_all_printers_feed_resumes_each_printer_from_its_own_last_id(
         return seen
 
     assert run(scenario()) == {"mk3": [4, 5], "other": [2, 3, 4, 5]}
+
+
+def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
+    printer: Printer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The channel layer is lossy: a client re-reads the log now and then."""
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+
+    async def no_relay(printer_id: int) -> None:
+        """Nobody publishes: every live message is 'lost'."""
+
+    monkeypatch.setattr(live, "watch", no_relay)
+    monkeypatch.setattr(live, "unwatch", no_relay)
+    key = user_key("viewer", Role.VIEWER)
+
+    async def scenario() -> list[int]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
+        await until(client, "hello")
+        await database_sync_to_async(add_lines)(printer, 1, 5)
+        seen = await line_ids(client, 5)
+        await client.disconnect()
+        return seen
+
+    assert run(scenario()) == [1, 2, 3, 4, 5]

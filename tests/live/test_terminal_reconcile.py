@@ -1,0 +1,76 @@
+"""The terminal re-reads the log now and then, so a lost live message costs nothing."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Iterator
+
+import pytest
+from channels.db import database_sync_to_async
+from channels.layers import channel_layers
+from django.contrib.auth import get_user_model
+from django.utils import timezone
+
+from printers import live
+from printers.models import Printer, ResponseLine
+from printers.terminal import Session
+from printhost.access import issue_key
+from printhost.models import PrinterRole, Role
+
+pytestmark = pytest.mark.django_db(transaction=True)
+
+
+@pytest.fixture(autouse=True)
+def fresh_layer() -> Iterator[None]:
+    """Each test runs its own event loop: give it its own in-memory layer."""
+    channel_layers.backends.clear()
+    yield
+    channel_layers.backends.clear()
+
+
+def add_lines(printer: Printer, first: int, last: int) -> None:
+    ResponseLine.objects.bulk_create(
+        ResponseLine(
+            printer=printer, seq=i, time=timezone.now(), text=f"echo {i}", kind=4
+        )
+        for i in range(first, last + 1)
+    )
+
+
+def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
+    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    printer = make_printer(slug="mk3", state="idle")
+    user = get_user_model().objects.create_user("watcher", password="watcher")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
+    key = issue_key(user, "terminal")[1]
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+
+    async def no_relay(printer_id: int) -> None:
+        """Nobody publishes: every live message is 'lost'."""
+
+    monkeypatch.setattr(live, "watch", no_relay)
+    monkeypatch.setattr(live, "unwatch", no_relay)
+
+    async def scenario() -> list[str]:
+        server = await asyncio.start_server(
+            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
+        )
+        port = server.sockets[0].getsockname()[1]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(f"{key}\n".encode())
+        greeting = await asyncio.wait_for(reader.readline(), 10)
+        assert greeting.startswith(b"// printhost: mk3 as watcher"), greeting
+        await database_sync_to_async(add_lines)(printer, 1, 3)
+        got = [
+            (await asyncio.wait_for(reader.readline(), 10)).decode() for _ in range(3)
+        ]
+        writer.close()
+        server.close()
+        return got
+
+    assert asyncio.run(asyncio.wait_for(scenario(), 30)) == [
+        "echo 1\n",
+        "echo 2\n",
+        "echo 3\n",
+    ]
