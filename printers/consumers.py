@@ -6,7 +6,7 @@ connect (session cookie, or an API key as `?apikey=` / `?token=` / `X-Api-Key` /
 (no viewer role, or a key bound to another printer) or 4404 (unknown printer).
 
 Out: `hello` (state snapshot and the log's last id), `lines`, `state`,
-`temperatures`, `job`, `truncated`, `queued`, `reply`, `error`. In: `{"cmd": ...}` and
+`temperatures`, `job`, `truncated`, `queued`, `reply`, `gone`, `error`. In: `{"cmd": ...}` and
 `{"action": ...}` (operator role); on the all-printers feed they name a `printer`.
 `?last=<id>` resumes after that id (`0` = everything the log keeps; on the
 all-printers feed `?last.<slug>=<id>` per printer); `?filter=<bits>`
@@ -222,8 +222,39 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         """
         while True:
             await asyncio.sleep(live.RECONCILE_SECONDS)
+            if not await self.recheck():
+                return
             for feed in list(self.feeds.values()):
                 await self.catch_up(feed, None)
+
+    async def recheck(self) -> bool:
+        """Follow changes of keys and roles; False when the connection was closed.
+
+        A revoked key or a lost role closes the connection (4401/4403); on the
+        all-printers feed a printer that became visible is added (from its newest
+        line) and one that no longer is is dropped with a `gone` message.
+        """
+        try:
+            self.caller = await database_sync_to_async(caller_from_scope)(self.scope)
+            printers = await database_sync_to_async(self.printers_to_watch)()
+        except Refused as refused:
+            await self.send_json({"type": "error", "message": str(refused)})
+            await self.close(code=refused.code)
+            return False
+        wanted = {printer.pk: printer for printer in printers}
+        for printer_id in set(self.feeds) - set(wanted):
+            feed = self.feeds.pop(printer_id)
+            await self.channel_layer.group_discard(
+                live.group_for(printer_id), self.channel_name
+            )
+            await live.unwatch(printer_id)
+            message = "you may no longer view this printer"
+            await self.send_json(
+                {"type": "gone", "printer": feed.printer.slug, "message": message}
+            )
+        for printer_id in set(wanted) - set(self.feeds):
+            await self.subscribe(wanted[printer_id], None)
+        return True
 
     async def send_lines(self, feed: Feed, lines: list[live.Line]) -> None:
         if lines:

@@ -18,7 +18,7 @@ from printers import live
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost.access import issue_key
 from printhost.asgi import application
-from printhost.models import AuditEntry, PrinterRole, Role
+from printhost.models import ApiKey, AuditEntry, PrinterRole, Role
 
 pytestmark = pytest.mark.django_db(transaction=True)
 TIMEOUT = 5
@@ -436,3 +436,54 @@ def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
         return seen
 
     assert run(scenario()) == [1, 2, 3, 4, 5]
+
+
+def test_the_all_printers_feed_follows_role_changes(
+    printer: Printer,
+    make_printer: Callable[..., Printer],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+    other = make_printer(slug="other", state="idle")
+    key = user_key("watcher", Role.VIEWER, printer)
+    user = get_user_model().objects.get(username="watcher")
+
+    def swap_roles() -> None:
+        PrinterRole.objects.filter(user=user, printer=printer).delete()
+        PrinterRole.objects.create(user=user, role=Role.VIEWER, printer=other)
+
+    async def scenario() -> tuple[dict, dict]:
+        client = await connect(f"/ws/printers/?apikey={key}")
+        first = await until(client, "hello")
+        assert first["printer"] == "mk3"
+        await database_sync_to_async(swap_roles)()
+        gone = await until(client, "gone")
+        added = await until(client, "hello")
+        await client.disconnect()
+        return gone, added
+
+    gone, added = run(scenario())
+    assert gone["printer"] == "mk3"
+    assert added["printer"] == "other"
+
+
+def test_a_revoked_key_is_disconnected_within_seconds(
+    printer: Printer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+    key = user_key("watcher", Role.VIEWER, printer)
+
+    def revoke() -> None:
+        ApiKey.objects.update(revoked_at=timezone.now())
+
+    async def scenario() -> tuple[dict, int]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}")
+        await until(client, "hello")
+        await database_sync_to_async(revoke)()
+        error = await until(client, "error")
+        close = await client.receive_output(timeout=TIMEOUT)
+        return error, close["code"]
+
+    error, code = run(scenario())
+    assert code == 4401
+    assert "revoked" in error["message"]
