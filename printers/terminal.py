@@ -32,7 +32,7 @@ from printers import live
 from printers.consumers import run_command, wait_reply
 from printers.models import Printer
 from printhost.access import Caller, caller_from_key
-from printhost.models import Role
+from printhost.models import ApiKey, Role
 
 logger = logging.getLogger("printhost.terminal")
 
@@ -116,9 +116,10 @@ class Session:
             self.cursor = live.LineCursor(last)
             output = asyncio.ensure_future(self.output(layer, channel))
             commands = asyncio.ensure_future(self.commands())
-            self.tasks |= {output, commands, asyncio.ensure_future(self.reconcile())}
+            reconcile = asyncio.ensure_future(self.reconcile())
+            self.tasks |= {output, commands, reconcile}
             done, _ = await asyncio.wait(
-                {output, commands}, return_when=asyncio.FIRST_COMPLETED
+                {output, commands, reconcile}, return_when=asyncio.FIRST_COMPLETED
             )
             for task in done:
                 if task.exception() is not None and not isinstance(
@@ -141,10 +142,27 @@ class Session:
             await self.write_lines(self.cursor.take(event["lines"]))
 
     async def reconcile(self) -> None:
-        """Now and then, write what the log holds past the cursor (a lost message)."""
+        """Now and then, write what the log holds past the cursor (a lost message),
+        and end the session when its key was revoked or its role taken away."""
         while True:
             await asyncio.sleep(live.RECONCILE_SECONDS)
+            reason = await database_sync_to_async(self.still_allowed)()
+            if reason:
+                await self.say(f"error: {reason}")
+                return
             await self.catch_up(None)
+
+    def still_allowed(self) -> str:
+        """Why this session may no longer watch ("" while it may)."""
+        caller = self.caller
+        if caller is None or caller.key is None:
+            return "not logged in"
+        key = ApiKey.objects.select_related("user").filter(pk=caller.key.pk).first()
+        if key is None or not key.active or not key.user.is_active:
+            return "the API key was revoked"
+        if not caller.can(self.printer, Role.VIEWER):
+            return f"this key may no longer watch printer {self.printer.slug!r}"
+        return ""
 
     async def catch_up(self, upto: int | None) -> None:
         read = database_sync_to_async(live.lines_after)

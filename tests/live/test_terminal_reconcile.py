@@ -15,7 +15,7 @@ from printers import live
 from printers.models import Printer, ResponseLine
 from printers.terminal import Session
 from printhost.access import issue_key
-from printhost.models import PrinterRole, Role
+from printhost.models import ApiKey, PrinterRole, Role
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -74,3 +74,35 @@ def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
         "echo 2\n",
         "echo 3\n",
     ]
+
+
+def test_a_terminal_session_ends_when_its_key_is_revoked(
+    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    printer = make_printer(slug="mk3", state="idle")
+    user = get_user_model().objects.create_user("watcher", password="watcher")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
+    key = issue_key(user, "terminal")[1]
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+
+    def revoke() -> None:
+        ApiKey.objects.update(revoked_at=timezone.now())
+
+    async def scenario() -> tuple[bytes, bytes]:
+        server = await asyncio.start_server(
+            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
+        )
+        port = server.sockets[0].getsockname()[1]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(f"{key}\n".encode())
+        await asyncio.wait_for(reader.readline(), 10)
+        await database_sync_to_async(revoke)()
+        said = await asyncio.wait_for(reader.readline(), 10)
+        end = await asyncio.wait_for(reader.read(), 10)
+        writer.close()
+        server.close()
+        return said, end
+
+    said, end = asyncio.run(asyncio.wait_for(scenario(), 30))
+    assert said == b"error: the API key was revoked\n"
+    assert end == b"", "the session should have been closed"
