@@ -22,15 +22,20 @@ from printhost.models import AppKeyRequest
 if TYPE_CHECKING:
     from django.contrib.auth.models import AbstractBaseUser
 
+    from printers.models import Printer
+
 #: A pending request the app stopped polling for this long is dropped (OctoPrint: 5 s
 #: poll interval, so a minute is generous).
 STALE_SECONDS = 60.0
 
 
-def open_request(app: str, user_hint: str = "", *, origin: str = "") -> AppKeyRequest:
+def open_request(
+    app: str, user_hint: str = "", *, origin: str = "", printer: Printer | None = None
+) -> AppKeyRequest:
     return AppKeyRequest.objects.create(
         app=app[:100],
         user_hint=user_hint[:150],
+        printer=printer,
         app_token=secrets.token_urlsafe(24),
         user_token=secrets.token_urlsafe(24),
         origin=origin[:100],
@@ -73,7 +78,8 @@ def decide(row: AppKeyRequest, user: AbstractBaseUser, *, grant: bool) -> AppKey
         if row.state != AppKeyRequest.State.PENDING:
             return row
         if grant:
-            key, raw = issue_key(user, f"{row.app} (app key)")
+            # Asked through /p/<slug>/: the key works for that printer only.
+            key, raw = issue_key(user, f"{row.app} (app key)", printer=row.printer)
             row.state, row.api_key, row.handover = AppKeyRequest.State.GRANTED, key, raw
         else:
             row.state = AppKeyRequest.State.DENIED
@@ -100,7 +106,7 @@ def pending() -> list[AppKeyRequest]:
 
 
 def open_limited_request(
-    app: str, user_hint: str = "", *, origin: str = ""
+    app: str, user_hint: str = "", *, origin: str = "", printer: Printer | None = None
 ) -> AppKeyRequest:
     """`open_request`, refused once `MAX_PENDING` requests wait; stale ones expire."""
     AppKeyRequest.objects.filter(
@@ -110,4 +116,4 @@ def open_limited_request(
         raise TooManyRequests(
             f"{MAX_PENDING} app key requests already wait for a decision; try later"
         )
-    return open_request(app, user_hint, origin=origin)
+    return open_request(app, user_hint, origin=origin, printer=printer)

@@ -118,6 +118,10 @@ class AppKeyRequest(models.Model):
     api_key = models.ForeignKey(
         ApiKey, on_delete=models.SET_NULL, null=True, blank=True, related_name="+"
     )
+    #: The printer the app asked through (`/p/<slug>/...`): its key is bound to it.
+    printer = models.ForeignKey(
+        Printer, on_delete=models.CASCADE, null=True, blank=True, related_name="+"
+    )
     #: The granted key in clear, kept only until the app has fetched it once.
     handover = models.CharField(max_length=100, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)

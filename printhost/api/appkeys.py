@@ -12,6 +12,7 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
+from printers.models import Printer
 from printhost import appkeys
 from printhost.access import Forbidden
 from printhost.api.common import caller_of, envelope
@@ -40,9 +41,17 @@ def appkeys_request(request: HttpRequest, slug: str | None = None) -> JsonRespon
     user_hint = body.get("user") or ""
     if not isinstance(user_hint, str):
         raise HttpError(400, "'user' must be a user name")
+    printer = None
+    if slug:
+        printer = Printer.objects.filter(slug=slug).first()
+        if printer is None:
+            raise HttpError(404, f"Unknown printer {slug!r}")
     try:
         row = appkeys.open_limited_request(
-            app.strip(), user_hint.strip(), origin=request.META.get("REMOTE_ADDR", "")
+            app.strip(),
+            user_hint.strip(),
+            origin=request.META.get("REMOTE_ADDR", ""),
+            printer=printer,
         )
     except appkeys.TooManyRequests as error:
         raise HttpError(429, str(error)) from None

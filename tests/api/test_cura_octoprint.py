@@ -46,18 +46,18 @@ def approver(django_user_model: type, printer: Printer) -> Client:
     return browser
 
 
-def pair(cura: Client, approver: Client) -> str:
+def pair(cura: Client, approver: Client, prefix: str = "") -> str:
     """The whole pairing dance; returns the key Cura stores."""
-    assert cura.get("/plugin/appkeys/probe").status_code == 204
+    assert cura.get(f"{prefix}/plugin/appkeys/probe").status_code == 204
     asked = cura.post(
-        "/plugin/appkeys/request",
+        f"{prefix}/plugin/appkeys/request",
         data=json.dumps({"app": "Cura"}),
         content_type="application/json",
     )
     assert asked.status_code == 201, asked.content
     assert asked.json()["app_token"] and asked.json()["auth_dialog"]
     poll_url = asked["Location"]
-    assert poll_url.startswith("http://testserver/plugin/appkeys/request/")
+    assert poll_url.startswith(f"http://testserver{prefix}/plugin/appkeys/request/")
     assert cura.get(poll_url).status_code == 202
 
     pending = approver.get("/api/appkeys/pending").json()["data"]
@@ -171,3 +171,16 @@ def test_cura_pairing_denied_gives_404_and_no_key(
     )
     assert denied.status_code == 204
     assert cura.get(asked["Location"]).status_code == 404
+
+
+def test_pairing_through_a_printer_url_binds_the_key_to_that_printer(
+    printer: Printer, approver: Client, make_printer: Callable[..., Printer]
+) -> None:
+    from printhost.access import find_key
+
+    make_printer(slug="other", state=Printer.State.IDLE)
+    key = pair(Client(), approver, prefix="/p/ender")
+    assert find_key(key).printer == printer
+    cura = Client(headers={"X-Api-Key": key})
+    assert cura.get("/p/ender/api/printer").status_code == 200
+    assert cura.get("/p/other/api/printer").status_code == 403
