@@ -26,18 +26,16 @@ from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 from django.contrib.auth.models import AnonymousUser
 
-from jobs import services
 from printers import live
-from printers.models import Printer, QueuedCommand
-from printhost import audit
+from printers.models import Printer
 from printhost.access import Caller, caller_from_key
+from printhost.clients import run_action, run_command, wait_reply
 from printhost.models import Role
 
 logger = logging.getLogger("printhost.live")
 
-#: An [ESPxxx] reply is awaited at most this long (s), polling every REPLY_POLL.
+#: An [ESPxxx] reply is awaited at most this long (s).
 REPLY_TIMEOUT = 30.0
-REPLY_POLL = 0.1
 #: Close codes: the HTTP status plus 4000, as many websocket APIs do.
 CLOSE_UNAUTHENTICATED = 4401
 CLOSE_FORBIDDEN = 4403
@@ -323,7 +321,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
 
     async def answer(self, feed: Feed, row_id: int, text: str) -> None:
         """ESP3D routing: an [ESPxxx] reply goes to the client that asked, only."""
-        reply = await wait_reply(row_id)
+        reply = await esp_reply(row_id)
         await self.send_json(
             {
                 "type": "reply",
@@ -382,50 +380,9 @@ class PrintersConsumer(LiveConsumer):
         raise ValueError(f"name a printer you watch: unknown printer {slug!r}")
 
 
-# -- the shared client paths (sync; the terminal uses them too) -----------------------
-
-
-def check_operator(caller: Caller, printer: Printer) -> None:
-    """Raise PermissionError unless *caller* may act on *printer*."""
-    if not caller.can(printer, Role.OPERATOR):
-        raise PermissionError(f"operator role needed on printer {printer.slug!r}")
-
-
-def run_command(caller: Caller, printer: Printer, text: str) -> QueuedCommand:
-    """Queue a command for the printer as *caller*, audited."""
-    check_operator(caller, printer)
-    row = services.send_command(printer, text, origin=caller.origin)
-    audit.record(caller, "command", printer=printer, detail=row.text)
-    return row
-
-
-def run_action(caller: Caller, printer: Printer, name: str) -> QueuedCommand:
-    """Pause/resume/abort/clear the bed/stop now, as *caller*, audited."""
-    check_operator(caller, printer)
-    if name == "emergency_stop":
-        row = services.emergency_stop(printer, origin=caller.origin)
-    else:
-        row = services.request_action(printer, name, origin=caller.origin)
-    audit.record(caller, name, printer=printer)
-    return row
-
-
-async def wait_reply(row_id: int) -> str:
-    """The worker's reply to a queued request, or an error after REPLY_TIMEOUT."""
-    read = database_sync_to_async(_reply_of)
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + REPLY_TIMEOUT
-    while loop.time() < deadline:
-        reply = await read(row_id)
-        if reply is not None:
-            return reply
-        await asyncio.sleep(REPLY_POLL)
-    return "error: no reply from the printer's worker (is it running?)"
-
-
-def _reply_of(row_id: int) -> str | None:
-    row = QueuedCommand.objects.filter(pk=row_id).values("state", "reply").first()
-    if row is None:
-        return "error: the request was removed"
-    done = (QueuedCommand.State.DONE, QueuedCommand.State.FAILED)
-    return row["reply"] if row["state"] in done else None
+async def esp_reply(row_id: int) -> str:
+    """The text of the worker's answer to an [ESPxxx] request, or why there is none."""
+    answer = await wait_reply(row_id, REPLY_TIMEOUT)
+    if answer is None:
+        return "error: no reply from the printer's worker (is it running?)"
+    return answer["reply"]

@@ -29,9 +29,10 @@ from channels.layers import get_channel_layer
 from django.conf import settings
 
 from printers import live
-from printers.consumers import run_command, wait_reply
+from printers.consumers import esp_reply
 from printers.models import Printer
 from printhost.access import Caller, caller_from_key
+from printhost.clients import run_command
 from printhost.models import ApiKey, Role
 
 logger = logging.getLogger("printhost.terminal")
@@ -217,7 +218,7 @@ class Session:
 
     async def answer(self, row_id: int) -> None:
         """ESP3D routing: the reply to this client's [ESPxxx] goes to it alone."""
-        await self.say(await wait_reply(row_id))
+        await self.say(await esp_reply(row_id))
 
     async def say(self, text: str) -> None:
         self.writer.write(f"{text}\n".encode())

@@ -58,9 +58,7 @@ def bedclear(request: HttpRequest, slug: str) -> HttpResponse:
 def emergency(request: HttpRequest, slug: str) -> HttpResponse:
     """M112 (Marlin) or feed hold + reset (GRBL), ahead of everything queued."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    caller = caller_of(request)
-    row = services.emergency_stop(printer, origin=caller.origin)
-    audit.record(caller, "emergency", printer=printer)
+    row = job_action(request, printer, "emergency_stop", "emergency")
     return envelope({"id": row.pk})
 
 

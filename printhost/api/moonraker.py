@@ -17,7 +17,7 @@ from ninja.errors import HttpError
 
 from jobs.gcode import BadGcode
 from jobs.models import Job
-from jobs.services import ChecksumMismatch, emergency_stop, request_action
+from jobs.services import ChecksumMismatch
 from printers.models import Printer
 from printhost.access import Forbidden, NotAuthenticated
 from printhost.api.common import caller_of
@@ -31,7 +31,7 @@ from printhost.api.dialects import (
     truthy,
     upload_from_form,
 )
-from printhost.audit import record
+from printhost.clients import run_action
 from printhost.models import Role
 
 if TYPE_CHECKING:
@@ -165,9 +165,13 @@ def _job_action(request: HttpRequest, slug: str | None, action: str) -> HttpResp
     if running is None or (action in needs and running.state != needs[action]):
         state = running.state if running else "no job"
         raise HttpError(409, f"cannot {action}: printer {printer.slug!r} has {state}")
-    caller = caller_of(request)
-    request_action(printer, action, origin=caller.origin)
-    record(caller, f"job.{action}", printer=printer, job=running, detail=running.name)
+    run_action(
+        caller_of(request),
+        printer,
+        action,
+        audit_as=f"job.{action}",
+        detail=running.name,
+    )
     return _ok()
 
 
@@ -201,7 +205,5 @@ def moonraker_emergency_stop(
     request: HttpRequest, slug: str | None = None
 ) -> HttpResponse:
     printer = choose_printer(request, slug, Role.OPERATOR)
-    caller = caller_of(request)
-    emergency_stop(printer, origin=caller.origin)
-    record(caller, "emergency_stop", printer=printer, detail="Moonraker")
+    run_action(caller_of(request), printer, "emergency_stop", detail="Moonraker")
     return _ok()

@@ -16,7 +16,7 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs.models import Job
-from jobs.services import reprint, request_action, send_command
+from jobs.services import reprint
 from printers.models import Printer
 from printhost.access import NotAuthenticated, caller_from_request
 from printhost.api.common import caller_of
@@ -33,6 +33,7 @@ from printhost.api.dialects import (
     upload_from_form,
 )
 from printhost.audit import record
+from printhost.clients import PrinterOffline, run_action, run_command
 from printhost.models import Role
 
 if TYPE_CHECKING:
@@ -239,9 +240,13 @@ def octoprint_connection_command(
     actions = {"connect": "reconnect", "disconnect": "disconnect"}
     if command not in actions:
         raise HttpError(400, f"unknown command {command!r}; use connect or disconnect")
-    caller = caller_of(request)
-    request_action(printer, actions[command], origin=caller.origin)
-    record(caller, command, printer=printer, detail="OctoPrint connection command")
+    run_action(
+        caller_of(request),
+        printer,
+        actions[command],
+        audit_as=command,
+        detail="OctoPrint connection command",
+    )
     return _no_content()
 
 
@@ -331,12 +336,12 @@ def octoprint_printer_command(
     lines = [c.strip() for c in commands if c.strip()]
     if not lines:
         raise HttpError(400, "no command to send")
-    caller = caller_of(request)
     try:
-        send_command(printer, "\n".join(lines), origin=caller.origin)
+        run_command(caller_of(request), printer, "\n".join(lines))
+    except PrinterOffline as error:
+        raise HttpError(409, str(error)) from None
     except ValueError as error:
         raise HttpError(400, str(error)) from None
-    record(caller, "command", printer=printer, detail="\n".join(lines))
     return _no_content()
 
 
@@ -497,14 +502,12 @@ def octoprint_job_command(
     if command == "cancel":
         if running is None:
             raise HttpError(409, "no job is printing")
-        request_action(printer, "abort", origin=caller.origin)
-        record(caller, "job.abort", printer=printer, job=running, detail=running.name)
+        run_action(caller, printer, "abort", audit_as="job.abort", detail=running.name)
         return _no_content()
     if command == "restart":
         if running is None or running.state != Job.State.PAUSED:
             raise HttpError(409, "only a paused job can be restarted")
-        request_action(printer, "abort", origin=caller.origin)
-        record(caller, "job.abort", printer=printer, job=running, detail="restart")
+        run_action(caller, printer, "abort", audit_as="job.abort", detail="restart")
         again = reprint(running, origin=caller.origin, user=caller.user)
         record(caller, "job.queue", printer=printer, job=again, detail=again.name)
         return _no_content()
@@ -520,9 +523,8 @@ def octoprint_job_command(
             )
         if (action == "pause") != (running.state == Job.State.PRINTING):
             raise HttpError(409, f"{running.name} is {running.state}; cannot {action}")
-        request_action(printer, action, origin=caller.origin)
-        record(
-            caller, f"job.{action}", printer=printer, job=running, detail=running.name
+        run_action(
+            caller, printer, action, audit_as=f"job.{action}", detail=running.name
         )
         return _no_content()
     raise HttpError(

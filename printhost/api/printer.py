@@ -27,7 +27,6 @@ Extras a host needs (`state`, `connect`, `disconnect`, `bedclear`, `emergency`,
 
 from __future__ import annotations
 
-import asyncio
 from typing import TYPE_CHECKING, Any
 
 from asgiref.sync import sync_to_async
@@ -45,6 +44,13 @@ from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost import audit
 from printhost.access import Caller, Forbidden
 from printhost.api.common import caller_of, envelope, printer_for
+from printhost.clients import (
+    ONLINE_STATES,
+    PrinterOffline,
+    run_action,
+    run_command,
+    wait_reply,
+)
 from printhost.models import Role
 
 if TYPE_CHECKING:
@@ -52,15 +58,6 @@ if TYPE_CHECKING:
 
 router = Router(tags=["printer (Repetier-Server)"])
 
-#: Printer states in which the firmware is connected and takes commands.
-ONLINE_STATES = frozenset(
-    {
-        Printer.State.IDLE,
-        Printer.State.PRINTING,
-        Printer.State.PAUSED,
-        Printer.State.WAITSTART,
-    }
-)
 #: Most response lines one `response` call returns; `lastid` says where to go on.
 RESPONSE_PAGE = 1000
 VERSION = "0.1.0"
@@ -178,11 +175,6 @@ def should_queue(printer: Printer, mode: str) -> bool:
     return mode == "queue"
 
 
-def require_online(printer: Printer) -> None:
-    if printer.state not in ONLINE_STATES:
-        raise HttpError(409, "Printer offline")
-
-
 def upload_target(request: HttpRequest, slug: str) -> Printer:
     """Where an upload goes: the key's printer, else *slug*, else the user's default.
 
@@ -258,10 +250,7 @@ def job_of(printer: Printer, params: dict[str, str]) -> Job:
 def job_action(
     request: HttpRequest, printer: Printer, action: str, audit_name: str
 ) -> QueuedCommand:
-    caller = caller_of(request)
-    row = services.request_action(printer, action, origin=caller.origin)
-    audit.record(caller, audit_name, printer=printer, job=active_job(printer))
-    return row
+    return run_action(caller_of(request), printer, action, audit_as=audit_name)
 
 
 # -- seed calls ---------------------------------------------------------------------
@@ -285,38 +274,23 @@ async def send(request: HttpRequest, slug: str) -> HttpResponse:
     printer = await sync_to_async(printer_for)(request, slug, Role.OPERATOR)
     if not command:
         raise HttpError(400, "cmd is required")
-    word = command.split()[0].upper()
-    if word not in services.EMERGENCY_COMMANDS:
-        await sync_to_async(require_online)(printer)
-    caller = caller_of(request)
     try:
-        row = await sync_to_async(services.send_command)(
-            printer, command, origin=caller.origin
-        )
+        row = await sync_to_async(run_command)(caller_of(request), printer, command)
+    except PrinterOffline as error:
+        raise HttpError(409, str(error)) from None
     except ValueError as error:
         raise HttpError(400, str(error)) from None
-    await sync_to_async(audit.record)(
-        caller, "command", printer=printer, detail=command
-    )
     if not command.upper().startswith("[ESP"):
         return envelope({"id": row.pk, "kind": row.kind})
     wait = settings.PRINTHOST_ESP_REPLY_SECONDS
-    deadline = asyncio.get_running_loop().time() + wait
-    while True:
-        found = (
-            await QueuedCommand.objects.filter(pk=row.pk)
-            .values("state", "reply")
-            .afirst()
+    answer = await wait_reply(row.pk, wait)
+    if answer is None:
+        return envelope(
+            {"id": row.pk, "state": "pending"},
+            f"no reply from the printer within {wait:g} s; the command stays queued",
+            status=504,
         )
-        if found and found["state"] in ("done", "failed"):
-            return envelope({"id": row.pk, **found})
-        if asyncio.get_running_loop().time() > deadline:
-            return envelope(
-                {"id": row.pk, "state": found["state"] if found else "pending"},
-                f"no reply from the printer within {wait:g} s; the command stays queued",
-                status=504,
-            )
-        await asyncio.sleep(0.05)
+    return envelope({"id": row.pk, **answer})
 
 
 @router.get("/printer/response/{slug}", summary="Response log after an id")

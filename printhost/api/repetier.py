@@ -14,10 +14,8 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs import services
 from jobs.models import Job
 from printers.models import Printer, QueuedCommand
-from printhost import audit
 from printhost.api.common import caller_of, envelope, printer_for
 from printhost.api.printer import (
     VERSION,
@@ -26,11 +24,11 @@ from printhost.api.printer import (
     job_dict,
     printer_entry,
     request_params,
-    require_online,
     store_upload,
     upload_target,
     uploaded_file,
 )
+from printhost.clients import PrinterOffline, run_command
 from printhost.models import Role
 
 router = Router(tags=["printer (Repetier-Server dialect)"])
@@ -187,13 +185,12 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
         command = str(data.get("cmd", "")).strip()
         if not command:
             raise HttpError(400, 'send needs data={"cmd": "..."}')
-        if command.split()[0].upper() not in services.EMERGENCY_COMMANDS:
-            require_online(printer)
         try:
-            services.send_command(printer, command, origin=caller.origin)
+            run_command(caller, printer, command)
+        except PrinterOffline as error:
+            raise HttpError(409, str(error)) from None
         except ValueError as error:
             raise HttpError(400, str(error)) from None
-        audit.record(caller, "command", printer=printer, detail=command)
         return JsonResponse({})
     active = active_job(printer)
     if active is None:
