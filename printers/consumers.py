@@ -26,7 +26,7 @@ from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 from django.contrib.auth.models import AnonymousUser
 
-from printers import live
+from printers import broadcast, live
 from printers.models import Printer
 from printhost.access import Caller, caller_from_key
 from printhost.clients import run_action, run_command, wait_reply
@@ -164,7 +164,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             await self.channel_layer.group_discard(
                 live.group_for(printer_id), self.channel_name
             )
-            await live.unwatch(printer_id)
+            await broadcast.unwatch(printer_id)
         self.feeds = {}
 
     async def subscribe(self, printer: Printer, last: int | None) -> None:
@@ -176,7 +176,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         await self.channel_layer.group_add(
             live.group_for(printer.pk), self.channel_name
         )
-        await live.watch(printer.pk)
+        await broadcast.watch(printer.pk)
         snap = await database_sync_to_async(live.snapshot)(printer.pk)
         start = snap["last"] if last is None else last
         feed = Feed(printer, live.LineCursor(start, self.filter))
@@ -245,7 +245,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             await self.channel_layer.group_discard(
                 live.group_for(printer_id), self.channel_name
             )
-            await live.unwatch(printer_id)
+            await broadcast.unwatch(printer_id)
             message = "you may no longer view this printer"
             await self.send_json(
                 {"type": "gone", "printer": feed.printer.slug, "message": message}

@@ -28,7 +28,7 @@ from channels.db import database_sync_to_async
 from channels.layers import get_channel_layer
 from django.conf import settings
 
-from printers import live
+from printers import broadcast, live
 from printers.consumers import esp_reply
 from printers.models import Printer
 from printhost.access import Caller, caller_from_key
@@ -111,7 +111,7 @@ class Session:
         channel = await layer.new_channel()
         group = live.group_for(self.printer.pk)
         await layer.group_add(group, channel)
-        await live.watch(self.printer.pk)
+        await broadcast.watch(self.printer.pk)
         try:
             _, last = await database_sync_to_async(live.log_bounds)(self.printer.pk)
             self.cursor = live.LineCursor(last)
@@ -129,7 +129,7 @@ class Session:
                     logger.error("terminal session failed", exc_info=task.exception())
         finally:
             await layer.group_discard(group, channel)
-            await live.unwatch(self.printer.pk)
+            await broadcast.unwatch(self.printer.pk)
 
     async def output(self, layer: Any, channel: str) -> None:
         while True:

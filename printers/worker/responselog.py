@@ -8,7 +8,7 @@ from django.db import connections, transaction
 from django.db.models import Max
 from django.utils import timezone
 
-from printers import live
+from printers import broadcast
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ class ResponseLog:
         with transaction.atomic(), connection.cursor() as cursor:
             cursor.executemany(sql, rows)
         # Published after the commit: a client can always read a gap from the table.
-        live.publisher().lines(self.printer_id, batch)
+        broadcast.publisher().lines(self.printer_id, batch)
 
     def prune(self) -> int:
         """Delete lines older than the retention bound; returns how many went."""

@@ -7,7 +7,7 @@ from django.utils import timezone
 
 from jobs.gcode import iter_commands
 from jobs.models import ACTIVE_STATES, Job
-from printers import live
+from printers import broadcast
 from printers.streaming import Line, Stream, StreamType
 
 _OUTCOME_STATE = {
@@ -32,7 +32,7 @@ def recover_interrupted(printer_id: int) -> list[Job]:
         Job.objects.filter(pk=job.pk, state__in=ACTIVE_STATES).update(
             state=Job.State.INTERRUPTED, message=job.message, finished_at=timezone.now()
         )
-        live.publisher().job(job.pk)
+        broadcast.publisher().job(job.pk)
     return jobs
 
 
@@ -44,7 +44,7 @@ def claim_next(printer_id: int) -> Job | None:
         )
         if won == 1:
             job.refresh_from_db()
-            live.publisher().job(job.pk)
+            broadcast.publisher().job(job.pk)
             return job
     return None
 
@@ -71,7 +71,7 @@ def save_progress(stream: Stream, *, state: str | None = None) -> None:
     if state:
         fields["state"] = state
     Job.objects.filter(pk=stream.ref).update(**fields)
-    live.publisher().job(stream.ref)
+    broadcast.publisher().job(stream.ref)
 
 
 def finish(stream: Stream) -> Job.State:
@@ -85,7 +85,7 @@ def finish(stream: Stream) -> Job.State:
         bytes_acked=stream.bytes_acked,
         finished_at=timezone.now(),
     )
-    live.publisher().job(stream.ref)
+    broadcast.publisher().job(stream.ref)
     return state
 
 
@@ -94,7 +94,7 @@ def fail_job(job: Job, message: str) -> None:
     Job.objects.filter(pk=job.pk).update(
         state=Job.State.FAILED, message=message, finished_at=timezone.now()
     )
-    live.publisher().job(job.pk)
+    broadcast.publisher().job(job.pk)
 
 
 def next_position(printer_id: int) -> int:

@@ -7,7 +7,7 @@ from typing import Any
 
 from django.utils import timezone
 
-from printers import live
+from printers import broadcast
 from printers.models import Printer, TemperatureSample
 
 #: Temperatures and machine status are saved at most this often (s).
@@ -57,7 +57,7 @@ class PrinterStatus:
             state=self.state, state_message=self.message, worker_seen_at=timezone.now()
         )
         Printer.objects.filter(pk=self.printer_id).update(**values)
-        live.publisher().status(self.printer_id, values)
+        broadcast.publisher().status(self.printer_id, values)
         if "temperatures" in values:
             self.sample(now, values["temperatures"])
         self._dirty.clear()

@@ -14,7 +14,7 @@ from channels.testing import WebsocketCommunicator
 from django.contrib.auth import get_user_model
 from django.utils import timezone
 
-from printers import live
+from printers import broadcast, live
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost.access import issue_key
 from printhost.asgi import application
@@ -357,8 +357,6 @@ def test_the_all_printers_feed_covers_the_printers_the_caller_may_view(
 
 
 def test_the_relay_stops_after_the_last_client_leaves(printer: Printer) -> None:
-    from printers import live
-
     key = user_key("viewer", Role.VIEWER)
 
     async def scenario() -> tuple[list[int], list[int]]:
@@ -366,10 +364,10 @@ def test_the_relay_stops_after_the_last_client_leaves(printer: Printer) -> None:
         b = await connect(f"/ws/printers/mk3/?apikey={key}")
         await a.receive_json_from(timeout=TIMEOUT)
         await b.receive_json_from(timeout=TIMEOUT)
-        during = live.relays_running()
+        during = broadcast.relays_running()
         await a.disconnect()
         await b.disconnect()
-        return during, live.relays_running()
+        return during, broadcast.relays_running()
 
     during, after = run(scenario())
     assert during == [printer.pk]
@@ -423,8 +421,8 @@ def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
     async def no_relay(printer_id: int) -> None:
         """Nobody publishes: every live message is 'lost'."""
 
-    monkeypatch.setattr(live, "watch", no_relay)
-    monkeypatch.setattr(live, "unwatch", no_relay)
+    monkeypatch.setattr(broadcast, "watch", no_relay)
+    monkeypatch.setattr(broadcast, "unwatch", no_relay)
     key = user_key("viewer", Role.VIEWER)
 
     async def scenario() -> list[int]:

@@ -11,20 +11,20 @@ from datetime import UTC, datetime
 import pytest
 from channels.layers import channel_layers, get_channel_layer
 
-from printers import live
+from printers import broadcast, live
 from printers.models import Printer
 
 
 @pytest.fixture(autouse=True)
 def fresh_layer() -> Iterator[None]:
     channel_layers.backends.clear()
-    live.reset_publisher()
+    broadcast.reset_publisher()
     yield
-    live.reset_publisher()
+    broadcast.reset_publisher()
     channel_layers.backends.clear()
 
 
-def listen(publisher: live.LivePublisher, printer_id: int) -> Callable[[], dict]:
+def listen(publisher: broadcast.LivePublisher, printer_id: int) -> Callable[[], dict]:
     """Join the printer's group on the publisher's loop; returns a receive function."""
     layer = get_channel_layer()
     publisher._loop = publisher._loop or asyncio.new_event_loop()
@@ -35,7 +35,7 @@ def listen(publisher: live.LivePublisher, printer_id: int) -> Callable[[], dict]
 
 
 def test_a_stored_batch_is_published_with_ids_times_and_kinds() -> None:
-    publisher = live.LivePublisher(enabled=True)
+    publisher = broadcast.LivePublisher(enabled=True)
     receive = listen(publisher, 7)
     when = datetime(2026, 1, 2, 3, 4, 5, tzinfo=UTC)
     publisher.lines(7, [(41, when, "ok", 2), (42, when, "echo:busy", 4)])
@@ -56,7 +56,7 @@ def test_a_stored_batch_is_published_with_ids_times_and_kinds() -> None:
 
 
 def test_state_is_published_when_it_changes_and_temperatures_on_each_save() -> None:
-    publisher = live.LivePublisher(enabled=True)
+    publisher = broadcast.LivePublisher(enabled=True)
     receive = listen(publisher, 3)
     saved = {
         "state": "printing",
@@ -83,7 +83,7 @@ def test_job_progress_is_published_as_stored(
     job = make_job(printer, "G28\nG1 X1\n")
     job.lines_acked = 1
     job.save()
-    publisher = live.LivePublisher(enabled=True)
+    publisher = broadcast.LivePublisher(enabled=True)
     receive = listen(publisher, printer.pk)
     publisher.job(job.pk)
     event = receive()["event"]
@@ -93,9 +93,9 @@ def test_job_progress_is_published_as_stored(
 
 
 def test_nothing_is_published_without_a_cross_process_layer() -> None:
-    assert live.publisher().enabled is False
-    live.publisher().lines(1, [(1, datetime.now(UTC), "ok", 2)])
-    assert live.publisher().sent == 0
+    assert broadcast.publisher().enabled is False
+    broadcast.publisher().lines(1, [(1, datetime.now(UTC), "ok", 2)])
+    assert broadcast.publisher().sent == 0
 
 
 def test_an_unreachable_redis_never_stalls_the_worker(settings: object) -> None:
@@ -109,11 +109,11 @@ def test_an_unreachable_redis_never_stalls_the_worker(settings: object) -> None:
         }
     }
     channel_layers.backends.clear()
-    publisher = live.publisher()
+    publisher = broadcast.publisher()
     assert publisher.enabled
     started = time.monotonic()
     for seq in range(200):
         publisher.lines(1, [(seq, datetime.now(UTC), "ok", 2)])
-    assert time.monotonic() - started < live.SEND_TIMEOUT + 1.0
+    assert time.monotonic() - started < broadcast.SEND_TIMEOUT + 1.0
     assert publisher.sent == 0
     assert publisher.dropped == 200

@@ -11,7 +11,7 @@ from channels.layers import channel_layers
 from django.contrib.auth import get_user_model
 from django.utils import timezone
 
-from printers import live
+from printers import broadcast, live
 from printers.models import Printer, ResponseLine
 from printers.terminal import Session
 from printhost.access import issue_key
@@ -49,8 +49,8 @@ def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
     async def no_relay(printer_id: int) -> None:
         """Nobody publishes: every live message is 'lost'."""
 
-    monkeypatch.setattr(live, "watch", no_relay)
-    monkeypatch.setattr(live, "unwatch", no_relay)
+    monkeypatch.setattr(broadcast, "watch", no_relay)
+    monkeypatch.setattr(broadcast, "unwatch", no_relay)
 
     async def scenario() -> list[str]:
         server = await asyncio.start_server(
