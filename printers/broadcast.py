@@ -30,7 +30,6 @@ from printers.live import (
     PAGE_LINES,
     current_job,
     group_for,
-    job_dict,
     line_dict,
     lines_after,
     log_bounds,
@@ -130,7 +129,7 @@ class LivePublisher:
             return
         job = Job.objects.filter(pk=job_id).first()
         if job is not None:
-            self._send(job.printer_id, {"type": "job", "job": job_dict(job)})
+            self._send(job.printer_id, {"type": "job", "job": job.as_dict()})
 
     def _send(self, printer_id: int, event: dict[str, Any]) -> None:
         now = time.monotonic()
@@ -226,7 +225,7 @@ class RelayState:
         job = current_job(printer_id)
         if job is None and self.job_id is not None:
             job = Job.objects.filter(pk=self.job_id).first()
-        payload = job_dict(job) if job else None
+        payload = job.as_dict() if job else None
         if payload is not None:
             progress = {k: v for k, v in payload.items() if k != "eta"}
             before = {k: v for k, v in (self.job or {}).items() if k != "eta"}

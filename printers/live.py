@@ -119,11 +119,6 @@ def state_of(printer: Printer) -> dict[str, Any]:
     }
 
 
-def job_dict(job: Job) -> dict[str, Any]:
-    """A job's progress as clients receive it: the API's shape (`Job.as_dict`)."""
-    return job.as_dict()
-
-
 def current_job(printer_id: int) -> Job | None:
     return running_job(printer_id)
 
@@ -136,7 +131,7 @@ def snapshot(printer_id: int) -> dict[str, Any]:
     return {
         **state_of(printer),
         "temperatures": printer.temperatures,
-        "job": job_dict(job) if job else None,
+        "job": job.as_dict() if job else None,
         "first": first,
         "last": last,
     }

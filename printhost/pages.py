@@ -16,7 +16,7 @@ from django.shortcuts import get_object_or_404, render
 from jobs.models import FINISHED_STATES, Job
 from printers.models import Printer, ResponseLine
 from printhost.access import Caller
-from printhost.api.printer import printer_state
+from printhost.api.shapes import printer_state
 from printhost.models import ApiKey, Role
 
 if TYPE_CHECKING:

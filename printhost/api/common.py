@@ -88,6 +88,35 @@ def json_body(request: HttpRequest) -> dict[str, Any]:
     return data
 
 
+def request_params(request: HttpRequest) -> dict[str, str]:
+    """Query parameters, plus form fields of a form or multipart POST.
+
+    A raw body (an `append` chunk) is never parsed: only form content types are.
+    """
+    values = {k: request.GET.get(k, "") for k in request.GET}
+    content_type = request.content_type or ""
+    if request.method == "POST" and content_type in (
+        "multipart/form-data",
+        "application/x-www-form-urlencoded",
+    ):
+        for key in request.POST:
+            values.setdefault(key, request.POST.get(key, ""))
+    return values
+
+
+def parse_int(value: str | None, name: str, *, default: int, minimum: int = 0) -> int:
+    """An integer parameter, or a 400 that says what was wrong."""
+    if value in (None, ""):
+        return default
+    try:
+        number = int(value)
+    except ValueError:
+        raise HttpError(400, f"{name} must be an integer, not {value!r}") from None
+    if number < minimum:
+        raise HttpError(400, f"{name} must be {minimum} or more, not {number}")
+    return number
+
+
 def install_error_handlers(api: Any) -> None:
     """Map every error the API can raise to a status and a clear message."""
 

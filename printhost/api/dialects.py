@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from ninja.errors import HttpError
 
-from jobs.models import FINISHED_STATES, Job, running_job
+from jobs.models import FINISHED_STATES, Job
 from jobs.services import enqueue_upload, queue_job, reprint
 from printers.models import Printer
 from printhost.access import Forbidden
@@ -174,10 +174,6 @@ def print_job(caller: Caller, job: Job) -> Job:
         return job
     record(caller, "job.queue", printer=job.printer, job=job, detail=job.name)
     return job
-
-
-def active_job(printer: Printer) -> Job | None:
-    return running_job(printer.pk)
 
 
 def waits_for_bed(printer: Printer) -> bool:

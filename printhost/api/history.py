@@ -10,8 +10,7 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from printers.models import TemperatureSample
-from printhost.api.common import envelope, printer_for
-from printhost.api.printer import parse_int
+from printhost.api.common import envelope, parse_int, printer_for
 from printhost.models import Role
 
 router = Router(tags=["printer (host extras)"])

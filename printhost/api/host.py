@@ -14,11 +14,8 @@ from jobs.models import Job
 from printers.models import Printer, QueuedCommand
 from printhost import audit
 from printhost.api.common import caller_of, envelope, printer_for
-from printhost.api.printer import (
-    job_action,
-    job_dict,
-    printer_state,
-)
+from printhost.api.shapes import printer_state
+from printhost.clients import run_action
 from printhost.models import Role
 
 router = Router(tags=["printer (host extras)"])
@@ -33,14 +30,21 @@ def state(request: HttpRequest, slug: str) -> HttpResponse:
 @router.post("/printer/connect/{slug}", summary="Connect (or reconnect) the printer")
 def connect(request: HttpRequest, slug: str) -> HttpResponse:
     printer = printer_for(request, slug, Role.OPERATOR)
-    row = job_action(request, printer, QueuedCommand.Action.RECONNECT, "connect")
+    row = run_action(
+        caller_of(request), printer, QueuedCommand.Action.RECONNECT, audit_as="connect"
+    )
     return envelope({"id": row.pk})
 
 
 @router.post("/printer/disconnect/{slug}", summary="Close the printer's port")
 def disconnect(request: HttpRequest, slug: str) -> HttpResponse:
     printer = printer_for(request, slug, Role.OPERATOR)
-    row = job_action(request, printer, QueuedCommand.Action.DISCONNECT, "disconnect")
+    row = run_action(
+        caller_of(request),
+        printer,
+        QueuedCommand.Action.DISCONNECT,
+        audit_as="disconnect",
+    )
     return envelope({"id": row.pk})
 
 
@@ -50,7 +54,12 @@ def bedclear(request: HttpRequest, slug: str) -> HttpResponse:
     printer = printer_for(request, slug, Role.OPERATOR)
     if printer.state != Printer.State.WAITSTART:
         raise HttpError(409, f"{printer.slug} is {printer.state}, not waiting for it")
-    row = job_action(request, printer, QueuedCommand.Action.BED_CLEAR, "bed_clear")
+    row = run_action(
+        caller_of(request),
+        printer,
+        QueuedCommand.Action.BED_CLEAR,
+        audit_as="bed_clear",
+    )
     return envelope({"id": row.pk})
 
 
@@ -58,7 +67,9 @@ def bedclear(request: HttpRequest, slug: str) -> HttpResponse:
 def emergency(request: HttpRequest, slug: str) -> HttpResponse:
     """M112 (Marlin) or feed hold + reset (GRBL), ahead of everything queued."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    row = job_action(request, printer, "emergency_stop", "emergency")
+    row = run_action(
+        caller_of(request), printer, "emergency_stop", audit_as="emergency"
+    )
     return envelope({"id": row.pk})
 
 
@@ -110,4 +121,4 @@ def queue(request: HttpRequest, slug: str) -> HttpResponse:
         printer=printer,
         detail=",".join(str(j.pk) for j in jobs),
     )
-    return envelope([job_dict(j) for j in jobs])
+    return envelope([j.as_dict() for j in jobs])

@@ -16,13 +16,12 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs.gcode import BadGcode
-from jobs.models import Job
+from jobs.models import Job, running_job
 from jobs.services import ChecksumMismatch
 from printers.models import Printer
 from printhost.access import Forbidden, NotAuthenticated
 from printhost.api.common import caller_of
 from printhost.api.dialects import (
-    active_job,
     choose_printer,
     dialect_route,
     find_job,
@@ -114,7 +113,7 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
     to_print = truthy(request.POST.get("print"))
     checksum = request.POST.get("checksum", "").strip()
     busy = (
-        active_job(printer) is not None
+        running_job(printer.pk) is not None
         or printer.state != Printer.State.IDLE
         or Job.objects.filter(printer=printer, state=Job.State.QUEUED).exists()
     )
@@ -160,7 +159,7 @@ def moonraker_print_start(
 
 def _job_action(request: HttpRequest, slug: str | None, action: str) -> HttpResponse:
     printer = choose_printer(request, slug, Role.OPERATOR)
-    running = active_job(printer)
+    running = running_job(printer.pk)
     needs = {"pause": Job.State.PRINTING, "resume": Job.State.PAUSED}
     if running is None or (action in needs and running.state != needs[action]):
         state = running.state if running else "no job"

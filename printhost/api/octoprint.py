@@ -7,7 +7,6 @@ printer queues an upload that asks to print; it never refuses it.
 
 from __future__ import annotations
 
-from importlib import metadata
 from typing import TYPE_CHECKING, Any
 
 from django.contrib.auth import authenticate, login
@@ -15,13 +14,13 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs.models import Job
+from jobs.models import Job, running_job
 from jobs.services import reprint
 from printers.models import Printer
+from printhost import __version__
 from printhost.access import NotAuthenticated, caller_from_request
 from printhost.api.common import caller_of
 from printhost.api.dialects import (
-    active_job,
     choose_printer,
     dialect_route,
     elapsed_seconds,
@@ -46,13 +45,6 @@ router = Router(tags=["OctoPrint dialect"])
 OCTOPRINT_VERSION = "1.10.3"
 
 
-def _printhost_version() -> str:
-    try:
-        return metadata.version("printhost")
-    except metadata.PackageNotFoundError:
-        return "0.1.0"
-
-
 def _no_content() -> HttpResponse:
     return HttpResponse(status=204)
 
@@ -67,7 +59,7 @@ def octoprint_version(request: HttpRequest, slug: str | None = None) -> JsonResp
         {
             "api": "0.1",
             "server": OCTOPRINT_VERSION,
-            "text": f"OctoPrint {OCTOPRINT_VERSION} (printhost {_printhost_version()})",
+            "text": f"OctoPrint {OCTOPRINT_VERSION} (printhost {__version__})",
         }
     )
 
@@ -428,7 +420,7 @@ def _current_job(printer: Printer) -> Job | None:
     """The running job, else the next queued one, else the newest stored or done."""
     jobs = Job.objects.filter(printer=printer)
     return (
-        active_job(printer)
+        running_job(printer.pk)
         or jobs.filter(state=Job.State.QUEUED).order_by("position", "id").first()
         or jobs.order_by("-created_at", "-id").first()
     )
@@ -485,7 +477,7 @@ def octoprint_job_command(
     body = json_body(request)
     command = body.get("command")
     caller = caller_of(request)
-    running = active_job(printer)
+    running = running_job(printer.pk)
     if command == "start":
         if running is not None:
             raise HttpError(409, f"{running.name} is already printing")

@@ -27,8 +27,6 @@ Extras a host needs (`state`, `connect`, `disconnect`, `bedclear`, `emergency`,
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
-
 from asgiref.sync import sync_to_async
 from django.conf import settings
 from django.db.models import Max
@@ -37,15 +35,27 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs import services
-from jobs import uploads as sessions
 from jobs.gcode import BadGcode
-from jobs.models import ACTIVE_STATES, Job, Upload, running_job
-from printers.models import Printer, QueuedCommand, ResponseLine
+from jobs.models import ACTIVE_STATES, Job, running_job
+from printers.models import Printer, ResponseLine
 from printhost import audit
-from printhost.access import Caller, Forbidden
-from printhost.api.common import caller_of, envelope, printer_for
+from printhost.api.common import (
+    caller_of,
+    envelope,
+    parse_int,
+    printer_for,
+    request_params,
+)
+from printhost.api.shapes import printer_entry, printer_state
+from printhost.api.storing import (
+    autostart_mode,
+    chunked_upload,
+    should_queue,
+    store_upload,
+    upload_target,
+    uploaded_file,
+)
 from printhost.clients import (
-    ONLINE_STATES,
     PrinterOffline,
     run_action,
     run_command,
@@ -53,188 +63,10 @@ from printhost.clients import (
 )
 from printhost.models import Role
 
-if TYPE_CHECKING:
-    from django.core.files.uploadedfile import UploadedFile
-
 router = Router(tags=["printer (Repetier-Server)"])
 
 #: Most response lines one `response` call returns; `lastid` says where to go on.
 RESPONSE_PAGE = 1000
-VERSION = "0.1.0"
-
-
-# -- shapes -------------------------------------------------------------------------
-
-
-def job_dict(job: Job) -> dict[str, Any]:
-    """One job as the API shows it (the shape websockets use too)."""
-    return job.as_dict()
-
-
-def active_job(printer: Printer) -> Job | None:
-    return running_job(printer.pk)
-
-
-def _job_word(printer: Printer, active: Job | None) -> str:
-    """The seed's `job` field: none, printing, paused or waitstart."""
-    if printer.state == Printer.State.WAITSTART:
-        return "waitstart"
-    if active is None:
-        return "none"
-    return "paused" if active.state == Job.State.PAUSED else "printing"
-
-
-def printer_entry(printer: Printer) -> dict[str, Any]:
-    """The seed's list entry, plus `state` and `active` (enabled)."""
-    active = active_job(printer)
-    return {
-        "name": printer.name,
-        "slug": printer.slug,
-        "online": 1 if printer.state in ONLINE_STATES else 0,
-        "active": printer.enabled,
-        "job": _job_word(printer, active),
-        "state": printer.state,
-    }
-
-
-def current_job(job: Job | None) -> dict[str, Any] | None:
-    """The running job with its elapsed time and ETA."""
-    return None if job is None else job.as_dict()
-
-
-def printer_state(printer: Printer) -> dict[str, Any]:
-    """Everything a host shows about a printer at a glance."""
-    active = active_job(printer)
-    status = printer.machine_status or {}
-    queue = Job.objects.filter(printer=printer, state=Job.State.QUEUED)
-    return {
-        "slug": printer.slug,
-        "name": printer.name,
-        "state": printer.state,
-        "message": printer.state_message,
-        "online": printer.state in ONLINE_STATES,
-        "waitstart": printer.state == Printer.State.WAITSTART,
-        "firmware": printer.firmware,
-        "firmware_name": printer.firmware_name,
-        "temperatures": printer.temperatures or {},
-        "position": {k: v for k, v in status.items() if k != "state"},
-        "machine_state": status.get("state", ""),
-        "job": current_job(active),
-        "queue": [job_dict(job) for job in queue],
-    }
-
-
-# -- helpers ------------------------------------------------------------------------
-
-
-def request_params(request: HttpRequest) -> dict[str, str]:
-    """Query parameters, plus form fields of a form or multipart POST.
-
-    A raw body (an `append` chunk) is never parsed: only form content types are.
-    """
-    values = {k: request.GET.get(k, "") for k in request.GET}
-    content_type = request.content_type or ""
-    if request.method == "POST" and content_type in (
-        "multipart/form-data",
-        "application/x-www-form-urlencoded",
-    ):
-        for key in request.POST:
-            values.setdefault(key, request.POST.get(key, ""))
-    return values
-
-
-def parse_int(value: str | None, name: str, *, default: int, minimum: int = 0) -> int:
-    """An integer parameter, or a 400 that says what was wrong."""
-    if value in (None, ""):
-        return default
-    try:
-        number = int(value)
-    except ValueError:
-        raise HttpError(400, f"{name} must be an integer, not {value!r}") from None
-    if number < minimum:
-        raise HttpError(400, f"{name} must be {minimum} or more, not {number}")
-    return number
-
-
-def autostart_mode(value: str | None, *, default: str = "1") -> str:
-    """Repetier's autostart: `1`/`true` queue, `0`/`false` store, `-1` queue if empty."""
-    word = (value or default).strip().lower()
-    if word in ("1", "true", "yes", "on"):
-        return "queue"
-    if word in ("0", "false", "no", "off"):
-        return "store"
-    if word == "-1":
-        return "if_empty"
-    raise HttpError(400, f"autostart must be 1, 0, -1, true or false, not {value!r}")
-
-
-def should_queue(printer: Printer, mode: str) -> bool:
-    """Whether an upload with autostart *mode* joins the queue or is only stored."""
-    if mode == "if_empty":
-        return services.queue_is_empty(printer)
-    return mode == "queue"
-
-
-def upload_target(request: HttpRequest, slug: str) -> Printer:
-    """Where an upload goes: the key's printer, else *slug*, else the user's default.
-
-    A key bound to one printer uploads there when the URL names no printer (`-` or
-    `default`) and is refused (403) when the URL names another one: a job never
-    lands silently on a machine other than the one the URL says.
-    """
-    caller = caller_of(request)
-    if slug not in ("", "-", "default"):
-        return printer_for(request, slug, Role.OPERATOR)
-    if caller.key is not None and caller.key.printer_id is not None:
-        printer = caller.key.printer
-    else:
-        printer = caller.default_printer()
-        if printer is None:
-            raise HttpError(
-                404, "no default printer: name one in the URL or set a default"
-            )
-    caller.require(printer, Role.OPERATOR)
-    return printer
-
-
-def store_upload(
-    request: HttpRequest,
-    printer: Printer,
-    file: UploadedFile,
-    *,
-    name: str,
-    queue: bool,
-    sha256: str = "",
-) -> Job:
-    """Store a multipart upload as a job (queued or only stored) and audit it."""
-    caller = caller_of(request)
-    job = services.enqueue_upload(
-        printer,
-        file,
-        name=name or file.name or "upload.gcode",
-        origin=caller.origin,
-        user=caller.user if caller.authenticated else None,
-        queue=queue,
-        sha256=sha256,
-    )
-    audit.record(
-        caller,
-        "job.upload",
-        printer=printer,
-        job=job,
-        detail=f"{job.name} {job.size_bytes} bytes, {'queued' if queue else 'stored'}",
-    )
-    return job
-
-
-def uploaded_file(request: HttpRequest) -> UploadedFile:
-    """The file part of a multipart upload: `filename` (Repetier) or `file`."""
-    file = request.FILES.get("filename") or request.FILES.get("file")
-    if file is None:
-        raise HttpError(
-            400, "no file: send multipart/form-data with a file part named 'filename'"
-        )
-    return file
 
 
 def job_of(printer: Printer, params: dict[str, str]) -> Job:
@@ -245,12 +77,6 @@ def job_of(printer: Printer, params: dict[str, str]) -> Job:
     if job is None:
         raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
     return job
-
-
-def job_action(
-    request: HttpRequest, printer: Printer, action: str, audit_name: str
-) -> QueuedCommand:
-    return run_action(caller_of(request), printer, action, audit_as=audit_name)
 
 
 # -- seed calls ---------------------------------------------------------------------
@@ -382,7 +208,7 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
     if action == "list":
         printer = printer_for(request, slug, Role.VIEWER)
         jobs = Job.objects.filter(printer=printer).order_by("position", "id")
-        return envelope([job_dict(j) for j in jobs])
+        return envelope([j.as_dict() for j in jobs])
     if action == "upload":
         printer = upload_target(request, slug)
         mode = autostart_mode(params.get("autostart"))
@@ -395,10 +221,10 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
             queue=should_queue(printer, mode),
             sha256=params.get("sha256", ""),
         )
-        return envelope(job_dict(stored))
+        return envelope(stored.as_dict())
     if action in ("create", "append", "finish"):
         printer = upload_target(request, slug)
-        return _chunked(request, printer, action, params)
+        return chunked_upload(request, printer, action, params)
     printer = printer_for(request, slug, Role.OPERATOR)
     return _job_control(request, printer, action, params)
 
@@ -408,15 +234,15 @@ def _job_control(
 ) -> HttpResponse:
     caller = caller_of(request)
     if action in ("pause", "resume", "abort"):
-        active = active_job(printer)
+        active = running_job(printer.pk)
         if active is None:
             raise HttpError(409, f"no job is printing on {printer.slug}")
         if action == "pause" and active.state == Job.State.PAUSED:
             raise HttpError(409, f"job {active.pk} is already paused")
         if action == "resume" and active.state != Job.State.PAUSED:
             raise HttpError(409, f"job {active.pk} is not paused")
-        job_action(request, printer, action, f"job.{action}")
-        return envelope(job_dict(active))
+        run_action(caller_of(request), printer, action, audit_as=f"job.{action}")
+        return envelope(active.as_dict())
     target = job_of(printer, params)
     if action == "start":
         if not services.queue_job(target):
@@ -425,7 +251,7 @@ def _job_control(
             )
         target.refresh_from_db()
         audit.record(caller, "job.start", printer=printer, job=target)
-        return envelope(job_dict(target))
+        return envelope(target.as_dict())
     if action == "delete":
         if target.state in ACTIVE_STATES:
             raise HttpError(
@@ -447,84 +273,4 @@ def _job_control(
     except BadGcode as error:
         raise HttpError(409, str(error)) from None
     audit.record(caller, "job.reprint", printer=printer, job=again)
-    return envelope(job_dict(again))
-
-
-def upload_of(printer: Printer, caller: Caller, upload_id: str) -> Upload:
-    upload = Upload.objects.filter(pk=upload_id, printer=printer).first()
-    if upload is None:
-        raise HttpError(404, f"no upload {upload_id!r} on printer {printer.slug!r}")
-    if upload.user_id is not None and upload.user_id != getattr(
-        caller.user, "pk", None
-    ):
-        raise Forbidden("this upload belongs to another user")
-    return upload
-
-
-def session_dict(upload: Upload) -> dict[str, Any]:
-    """An upload session as the API shows it."""
-    return {
-        "id": upload.pk,
-        "name": upload.name,
-        "size": upload.size,
-        "offset": sessions.offset_of(upload),
-        "sha256": upload.sha256_expected,
-    }
-
-
-def finish_session(request: HttpRequest, upload: Upload) -> Job:
-    """Store a complete session's file as a job and audit it."""
-    caller = caller_of(request)
-    printer = upload.printer
-    mode = upload.options.get("autostart", "queue")
-    job = sessions.finish(
-        upload, origin=caller.origin, queue=should_queue(printer, mode)
-    )
-    audit.record(
-        caller,
-        "job.upload",
-        printer=printer,
-        job=job,
-        detail=f"{job.name} {job.size_bytes} bytes in chunks, {job.state}",
-    )
-    return job
-
-
-def _chunked(
-    request: HttpRequest, printer: Printer, action: str, params: dict[str, str]
-) -> HttpResponse:
-    caller = caller_of(request)
-    if action == "create":
-        name = params.get("name", "")
-        if not name:
-            raise HttpError(400, "name is required")
-        upload = sessions.open_upload(
-            printer,
-            name,
-            size=parse_int(params.get("size"), "size", default=0),
-            sha256=params.get("sha256", ""),
-            user=caller.user if caller.authenticated else None,
-            options={"autostart": autostart_mode(params.get("autostart"))},
-        )
-        return envelope(session_dict(upload))
-    upload_id = params.get("id", "")
-    if not upload_id:
-        raise HttpError(400, "id is required (the id `create` returned)")
-    upload = upload_of(printer, caller, upload_id)
-    if action == "append":
-        offset = params.get("offset")
-        try:
-            sessions.append(
-                upload,
-                request.read,
-                offset=None
-                if offset in (None, "")
-                else parse_int(offset, "offset", default=0),
-            )
-        except sessions.OffsetMismatch as error:
-            return envelope({"offset": error.expected}, str(error), status=409)
-        last = params.get("last", "").lower() in ("1", "true", "yes")
-        if not (last or sessions.is_complete(upload)):
-            return envelope({**session_dict(upload), "complete": False})
-    job_row = finish_session(request, upload)
-    return envelope({"id": upload.pk, "complete": True, "job": job_dict(job_row)})
+    return envelope(again.as_dict())

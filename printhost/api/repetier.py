@@ -14,21 +14,13 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs.models import Job
+from jobs.models import Job, running_job
 from printers.models import Printer, QueuedCommand
-from printhost.api.common import caller_of, envelope, printer_for
-from printhost.api.printer import (
-    VERSION,
-    active_job,
-    job_action,
-    job_dict,
-    printer_entry,
-    request_params,
-    store_upload,
-    upload_target,
-    uploaded_file,
-)
-from printhost.clients import PrinterOffline, run_command
+from printhost import __version__
+from printhost.api.common import caller_of, envelope, printer_for, request_params
+from printhost.api.shapes import printer_entry
+from printhost.api.storing import store_upload, upload_target, uploaded_file
+from printhost.clients import PrinterOffline, run_action, run_command
 from printhost.models import Role
 
 router = Router(tags=["printer (Repetier-Server dialect)"])
@@ -47,7 +39,7 @@ def printer_info(request: HttpRequest) -> HttpResponse:
         {
             "name": "Repetier-Server compatible printhost",
             "software": "Repetier-Server",
-            "version": VERSION,
+            "version": __version__,
             "variant": "printhost",
             "servername": "printhost",
             "serveruuid": "",
@@ -71,7 +63,7 @@ def model_upload(request: HttpRequest, slug: str) -> HttpResponse:
         name=params.get("name", ""),
         queue=False,
     )
-    return envelope(job_dict(stored))
+    return envelope(stored.as_dict())
 
 
 def _temps(printer: Printer) -> dict[str, Any]:
@@ -90,7 +82,7 @@ def _temps(printer: Printer) -> dict[str, Any]:
 
 
 def _list_printer_entry(printer: Printer) -> dict[str, Any]:
-    active = active_job(printer)
+    active = running_job(printer.pk)
     entry = printer_entry(printer)
     elapsed = (active.elapsed_seconds() if active else None) or 0
     return {
@@ -162,7 +154,7 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
     if call == "listJobs":
         printer = printer_for(request, slug, Role.VIEWER)
         jobs = Job.objects.filter(printer=printer).order_by("position", "id")
-        return JsonResponse({"data": [job_dict(j) for j in jobs]})
+        return JsonResponse({"data": [j.as_dict() for j in jobs]})
     if call == "getPrinterConfig":
         printer = printer_for(request, slug, Role.VIEWER)
         temps = _temps(printer)
@@ -192,11 +184,21 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
         except ValueError as error:
             raise HttpError(400, str(error)) from None
         return JsonResponse({})
-    active = active_job(printer)
+    active = running_job(printer.pk)
     if active is None:
         raise HttpError(409, f"no job is printing on {printer.slug}")
     if call == "continueJob":
-        job_action(request, printer, QueuedCommand.Action.RESUME, "job.resume")
+        run_action(
+            caller_of(request),
+            printer,
+            QueuedCommand.Action.RESUME,
+            audit_as="job.resume",
+        )
     else:  # stopJob
-        job_action(request, printer, QueuedCommand.Action.ABORT, "job.abort")
+        run_action(
+            caller_of(request),
+            printer,
+            QueuedCommand.Action.ABORT,
+            audit_as="job.abort",
+        )
     return JsonResponse({})

@@ -25,13 +25,16 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs import uploads as sessions
-from printhost.api.common import caller_of, envelope, printer_for
-from printhost.api.printer import (
+from printhost.api.common import (
+    caller_of,
+    envelope,
+    parse_int,
+    printer_for,
+    request_params,
+)
+from printhost.api.storing import (
     autostart_mode,
     finish_session,
-    job_dict,
-    parse_int,
-    request_params,
     session_dict,
     upload_of,
     upload_target,
@@ -112,7 +115,7 @@ def patch(request: HttpRequest, slug: str, upload_id: str) -> HttpResponse:
     job = finish_session(request, upload)
     return _with_offset(
         envelope(
-            {"id": upload.pk, "offset": now, "complete": True, "job": job_dict(job)}
+            {"id": upload.pk, "offset": now, "complete": True, "job": job.as_dict()}
         ),
         now,
     )
