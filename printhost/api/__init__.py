@@ -43,6 +43,7 @@ def _register() -> None:
 ROUTER_MODULES: list[str] = [
     "moonraker",
     "octoprint",
+    "octoprint_jobs",
     "appkeys",
     "keys",
     "config",

@@ -14,8 +14,6 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs.models import Job, running_job
-from jobs.services import reprint
 from printers.models import Printer
 from printhost import __version__
 from printhost.access import NotAuthenticated, caller_from_request
@@ -23,15 +21,8 @@ from printhost.api.common import caller_of
 from printhost.api.dialects import (
     choose_printer,
     dialect_route,
-    elapsed_seconds,
-    find_job,
     json_body,
-    print_job,
-    stored_name,
-    truthy,
-    upload_from_form,
 )
-from printhost.audit import record
 from printhost.clients import PrinterOffline, run_action, run_command
 from printhost.models import Role
 
@@ -45,7 +36,7 @@ router = Router(tags=["OctoPrint dialect"])
 OCTOPRINT_VERSION = "1.10.3"
 
 
-def _no_content() -> HttpResponse:
+def no_content() -> HttpResponse:
     return HttpResponse(status=204)
 
 
@@ -239,7 +230,7 @@ def octoprint_connection_command(
         audit_as=command,
         detail="OctoPrint connection command",
     )
-    return _no_content()
+    return no_content()
 
 
 # -- printer --------------------------------------------------------------------------
@@ -263,7 +254,7 @@ def _temperatures(printer: Printer) -> dict[str, Any]:
     return found
 
 
-def _state(printer: Printer) -> dict[str, Any]:
+def state_and_flags(printer: Printer) -> dict[str, Any]:
     state = printer.state
     operational = state in (
         Printer.State.IDLE,
@@ -305,7 +296,7 @@ def octoprint_printer(request: HttpRequest, slug: str | None = None) -> JsonResp
     return JsonResponse(
         {
             "temperature": _temperatures(printer),
-            "state": _state(printer),
+            "state": state_and_flags(printer),
             "sd": {"ready": False},
         }
     )
@@ -334,191 +325,4 @@ def octoprint_printer_command(
         raise HttpError(409, str(error)) from None
     except ValueError as error:
         raise HttpError(400, str(error)) from None
-    return _no_content()
-
-
-# -- files ----------------------------------------------------------------------------
-
-
-def _file_info(request: HttpRequest, job: Job, prefix: str) -> dict[str, Any]:
-    name = stored_name(job)
-    resource = request.build_absolute_uri(f"{prefix}/api/files/local/{name}")
-    return {
-        "name": name,
-        "display": job.name,
-        "path": name,
-        "type": "machinecode",
-        "typePath": ["machinecode", "gcode"],
-        "origin": "local",
-        "size": job.size_bytes,
-        "date": int(job.created_at.timestamp()),
-        "hash": job.sha256,
-        "refs": {"resource": resource, "download": resource},
-    }
-
-
-def _prefix(slug: str | None) -> str:
-    return f"/p/{slug}" if slug else ""
-
-
-@dialect_route(router, "POST", "/api/files/local")
-def octoprint_upload(request: HttpRequest, slug: str | None = None) -> JsonResponse:
-    """Upload (multipart `file`, `path`, `select`, `print`); print = join the queue."""
-    printer = choose_printer(request, slug, Role.OPERATOR)
-    if "foldername" in request.POST and "file" not in request.FILES:
-        raise HttpError(400, "folders are not supported; upload a file")
-    to_print = truthy(request.POST.get("print"))
-    select = truthy(request.POST.get("select")) or to_print
-    job = upload_from_form(request, printer, queue=to_print)
-    info = _file_info(request, job, _prefix(slug))
-    response = JsonResponse(
-        {
-            "files": {"local": info},
-            "done": True,
-            "effectiveSelect": select,
-            "effectivePrint": to_print,
-        },
-        status=201,
-    )
-    response["Location"] = info["refs"]["resource"]
-    return response
-
-
-@dialect_route(router, "GET", "/api/files/local/{path:filename}")
-def octoprint_file(
-    request: HttpRequest, filename: str, slug: str | None = None
-) -> JsonResponse:
-    printer = choose_printer(request, slug, Role.VIEWER)
-    job = find_job(printer, filename)
-    if job is None:
-        raise HttpError(404, f"no file {filename!r} on printer {printer.slug!r}")
-    return JsonResponse(_file_info(request, job, _prefix(slug)))
-
-
-@dialect_route(router, "POST", "/api/files/local/{path:filename}")
-def octoprint_file_command(
-    request: HttpRequest, filename: str, slug: str | None = None
-) -> HttpResponse:
-    """`{"command": "select", "print": true}`: queue the file (a queued one stays)."""
-    printer = choose_printer(request, slug, Role.OPERATOR)
-    body = json_body(request)
-    command = body.get("command")
-    if command != "select":
-        raise HttpError(400, f"unknown command {command!r}; use select")
-    job = find_job(printer, filename)
-    if job is None:
-        raise HttpError(404, f"no file {filename!r} on printer {printer.slug!r}")
-    if truthy(body.get("print")):
-        print_job(caller_of(request), job)
-    return _no_content()
-
-
-# -- job ------------------------------------------------------------------------------
-
-
-def _current_job(printer: Printer) -> Job | None:
-    """The running job, else the next queued one, else the newest stored or done."""
-    jobs = Job.objects.filter(printer=printer)
-    return (
-        running_job(printer.pk)
-        or jobs.filter(state=Job.State.QUEUED).order_by("position", "id").first()
-        or jobs.order_by("-created_at", "-id").first()
-    )
-
-
-@dialect_route(router, "GET", "/api/job")
-def octoprint_job(request: HttpRequest, slug: str | None = None) -> JsonResponse:
-    printer = choose_printer(request, slug, Role.VIEWER)
-    job = _current_job(printer)
-    file: dict[str, Any] = {"name": None, "path": None, "origin": None, "size": None}
-    completion = print_time = time_left = None
-    if job is not None:
-        file = {
-            "name": job.name,
-            "path": stored_name(job),
-            "display": job.name,
-            "origin": "local",
-            "size": job.size_bytes,
-            "date": int(job.created_at.timestamp()),
-        }
-        if job.state != Job.State.STORED:
-            completion = round(job.progress * 100, 2)
-        print_time = elapsed_seconds(job)
-        remaining = job.remaining_seconds()
-        time_left = None if remaining is None else int(remaining)
-    state = _state(printer)["text"]
-    return JsonResponse(
-        {
-            "job": {
-                "file": file,
-                "estimatedPrintTime": None,
-                "lastPrintTime": None,
-                "filament": None,
-                "user": None,
-            },
-            "progress": {
-                "completion": completion,
-                "filepos": job.bytes_acked if job else None,
-                "printTime": print_time,
-                "printTimeLeft": time_left,
-                "printTimeLeftOrigin": "linear" if time_left is not None else None,
-            },
-            "state": state,
-        }
-    )
-
-
-@dialect_route(router, "POST", "/api/job")
-def octoprint_job_command(
-    request: HttpRequest, slug: str | None = None
-) -> HttpResponse:
-    """start / cancel / restart / pause (action pause, resume, toggle): 204 or 409."""
-    printer = choose_printer(request, slug, Role.OPERATOR)
-    body = json_body(request)
-    command = body.get("command")
-    caller = caller_of(request)
-    running = running_job(printer.pk)
-    if command == "start":
-        if running is not None:
-            raise HttpError(409, f"{running.name} is already printing")
-        stored = (
-            Job.objects.filter(printer=printer, state=Job.State.STORED)
-            .order_by("-created_at", "-id")
-            .first()
-        )
-        if stored is not None:
-            print_job(caller, stored)
-        elif not Job.objects.filter(printer=printer, state=Job.State.QUEUED).exists():
-            raise HttpError(409, "no file is selected: upload one first")
-        return _no_content()
-    if command == "cancel":
-        if running is None:
-            raise HttpError(409, "no job is printing")
-        run_action(caller, printer, "abort", audit_as="job.abort", detail=running.name)
-        return _no_content()
-    if command == "restart":
-        if running is None or running.state != Job.State.PAUSED:
-            raise HttpError(409, "only a paused job can be restarted")
-        run_action(caller, printer, "abort", audit_as="job.abort", detail="restart")
-        again = reprint(running, origin=caller.origin, user=caller.user)
-        record(caller, "job.queue", printer=printer, job=again, detail=again.name)
-        return _no_content()
-    if command == "pause":
-        if running is None:
-            raise HttpError(409, "no job is printing")
-        action = str(body.get("action", "toggle"))
-        if action == "toggle":
-            action = "resume" if running.state == Job.State.PAUSED else "pause"
-        if action not in ("pause", "resume"):
-            raise HttpError(
-                400, f"unknown action {action!r}; use pause, resume, toggle"
-            )
-        if (action == "pause") != (running.state == Job.State.PRINTING):
-            raise HttpError(409, f"{running.name} is {running.state}; cannot {action}")
-        run_action(
-            caller, printer, action, audit_as=f"job.{action}", detail=running.name
-        )
-        return _no_content()
-    raise HttpError(
-        400, f"unknown command {command!r}; use start, cancel, restart or pause"
-    )
+    return no_content()
