@@ -256,6 +256,8 @@ def reorder_queue(printer: Printer, ids: list[int]) -> list[Job]:
             .filter(printer=printer, state=Job.State.QUEUED)
             .order_by("position", "id")
         )
+        for job in queued:
+            job.printer = printer  # all of them are its jobs: no query per job later
         by_id = {job.pk: job for job in queued}
         unknown = [i for i in ids if i not in by_id]
         if unknown:

@@ -127,7 +127,7 @@ class LivePublisher:
         """A job's row was saved: publish its progress as stored."""
         if not self.enabled or job_id is None:
             return
-        job = Job.objects.filter(pk=job_id).first()
+        job = Job.objects.filter(pk=job_id).select_related("printer").first()
         if job is not None:
             self._send(job.printer_id, {"type": "job", "job": job.as_dict()})
 

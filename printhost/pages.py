@@ -111,13 +111,14 @@ def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
     newest = ResponseLine.objects.filter(printer=printer).aggregate(m=Max("seq"))["m"]
     queue = list(
         Job.objects.filter(printer=printer)
+        .select_related("printer")
         .exclude(state__in=FINISHED_STATES)
         .order_by("position", "id")
     )
     finished = list(
-        Job.objects.filter(printer=printer, state__in=FINISHED_STATES).order_by("-id")[
-            :FINISHED_SHOWN
-        ]
+        Job.objects.filter(printer=printer, state__in=FINISHED_STATES)
+        .select_related("printer")
+        .order_by("-id")[:FINISHED_SHOWN]
     )
     context = card(printer, caller) | {
         "lines": lines,

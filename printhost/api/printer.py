@@ -207,7 +207,8 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         )
     if action == "list":
         printer = printer_for(request, slug, Role.VIEWER)
-        jobs = Job.objects.filter(printer=printer).order_by("position", "id")
+        jobs = Job.objects.filter(printer=printer).select_related("printer")
+        jobs = jobs.order_by("position", "id")
         return envelope([j.as_dict() for j in jobs])
     if action == "upload":
         printer = upload_target(request, slug)

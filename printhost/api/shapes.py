@@ -35,7 +35,9 @@ def printer_state(printer: Printer) -> dict[str, Any]:
     """Everything a host shows about a printer at a glance."""
     active = running_job(printer.pk)
     status = printer.machine_status or {}
-    queue = Job.objects.filter(printer=printer, state=Job.State.QUEUED)
+    queue = Job.objects.filter(printer=printer, state=Job.State.QUEUED).select_related(
+        "printer"
+    )
     return {
         "slug": printer.slug,
         "name": printer.name,

@@ -469,3 +469,18 @@ def test_viewer_may_not_open_a_resumable_upload(keys, printer) -> None:
     )
     assert status == 403
     assert body["error"]
+
+
+def test_listing_jobs_costs_the_same_queries_for_one_job_or_twenty(
+    keys, printer, make_job, django_assert_max_num_queries
+) -> None:
+    key = keys()
+    make_job(printer, GCODE)
+    with django_assert_max_num_queries(20) as one:
+        call("get", "/printer/job/mk3?a=list", key)
+    for _ in range(19):
+        make_job(printer, GCODE)
+    with django_assert_max_num_queries(len(one.captured_queries)):
+        status, body = call("get", "/printer/job/mk3?a=list", key)
+    assert status == 200
+    assert len(body["data"]) == 20
