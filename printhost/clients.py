@@ -55,11 +55,21 @@ def run_command(caller: Caller, printer: Printer, text: str) -> QueuedCommand:
     check_operator(caller, printer)
     words = text.split()
     emergency = bool(words) and words[0].upper() in services.EMERGENCY_COMMANDS
-    if words and not emergency and printer.state not in ONLINE_STATES:
+    if words and not emergency and current_state(printer) not in ONLINE_STATES:
         raise PrinterOffline("Printer offline")
     row = services.send_command(printer, text, origin=caller.origin)
     audit.record(caller, "command", printer=printer, detail=row.text)
     return row
+
+
+def current_state(printer: Printer) -> str:
+    """The printer's state as its worker last wrote it.
+
+    Websocket and terminal sessions hold their Printer row for hours; its `state`
+    field is as old as the session, so read the column afresh.
+    """
+    state = Printer.objects.filter(pk=printer.pk).values_list("state", flat=True)
+    return state.first() or Printer.State.OFFLINE
 
 
 def run_action(

@@ -485,3 +485,28 @@ def test_a_revoked_key_is_disconnected_within_seconds(
     error, code = run(scenario())
     assert code == 4401
     assert "revoked" in error["message"]
+
+
+def test_a_command_follows_the_printer_state_as_it_is_now_not_at_connect(
+    printer: Printer,
+) -> None:
+    key = user_key("op", Role.OPERATOR, printer)
+
+    def set_state(state: str) -> None:
+        Printer.objects.filter(pk=printer.pk).update(state=state)
+
+    async def scenario() -> tuple[dict, dict]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}")
+        await until(client, "hello")
+        await database_sync_to_async(set_state)("offline")
+        await client.send_json_to({"cmd": "G28"})
+        refused = await until(client, "error")
+        await database_sync_to_async(set_state)("idle")
+        await client.send_json_to({"cmd": "G28"})
+        queued = await until(client, "queued")
+        await client.disconnect()
+        return refused, queued
+
+    refused, queued = run(scenario())
+    assert refused["message"] == "Printer offline"
+    assert queued["cmd"] == "G28"
