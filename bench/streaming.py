@@ -103,16 +103,16 @@ def whole_line_bound(r: dict) -> float | None:
 def checks(results: list[dict]) -> list[str]:
     """Windowed and GRBL cases: link use >= 0.9 (no latency) or >= 0.9 x bound.
 
-    Each latency case is checked against the 127-byte bound and the whole-line bound.
+    With latency the target is the whole-line bound: no host that writes whole lines
+    can beat it (issue 2's decision). The 127-byte bound is printed beside it as
+    `INFO`, never as a failure.
     """
     lines = []
     for r in results:
-        if (
-            "error" in r
-            or not r.get("baud")
-            or r["mode"] == "ping_pong"
-            or r.get("group")
-        ):
+        if "error" in r:
+            lines.append(f"FAIL {r['name']}: the case did not run: {r['error']}")
+            continue
+        if not r.get("baud") or r["mode"] == "ping_pong" or r.get("group"):
             continue
         if r["latency_ms"] == 0:
             targets = [("", 0.9)]
@@ -121,9 +121,12 @@ def checks(results: list[dict]) -> list[str]:
             targets.append(("whole-line bound", 0.9 * r["bound_whole_lines"]))
         for label, target in targets:
             ok = r["link_use"] >= target
+            verdict = "PASS" if ok else "FAIL"
+            if label == "127-byte bound":
+                verdict = "INFO " + ("above" if ok else "below")
             against = f" ({label})" if label else ""
             lines.append(
-                f"{'PASS' if ok else 'FAIL'} {r['name']}: link use {r['link_use']:.3f} "
+                f"{verdict} {r['name']}: link use {r['link_use']:.3f} "
                 f">= {target:.3f}{against}"
             )
     return lines
