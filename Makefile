@@ -45,4 +45,4 @@ bench: install
 	$(BIN)/python -m bench.streaming
 
 clean:
-	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis bench-results.json
+	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis bench-results.json bench-soak.json

@@ -16,6 +16,8 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from bench import soak
+
 ROOT = Path(__file__).resolve().parent.parent
 MODES = [
     ("marlin", "ping_pong"),
@@ -151,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", default="", help="run cases whose name has this")
     parser.add_argument("--out", default=str(ROOT / "bench-results.json"))
     parser.add_argument("--from", dest="source", help="re-render a results file")
+    parser.add_argument("--no-soak", dest="soak", action="store_false",
+                        help="leave out the fault-injection soak (bench/soak.py)")  # fmt: skip
     options = parser.parse_args(argv)
     if options.source:
         return finish(json.loads(Path(options.source).read_text()), Path(options.out))
@@ -161,11 +165,17 @@ def main(argv: list[str] | None = None) -> int:
         result = run(case)
         results.append(result)
         print(f"{result['name']}: link use {result.get('link_use')}", flush=True)
-    if not options.only:
-        results += logging_cost(options.max_seconds)
-        results += live_feed_cost(options.max_seconds)
-        results += eight_at_once(options.max_seconds)
-    return finish(results, Path(options.out))
+    if options.only:
+        return finish(results, Path(options.out))
+    results += logging_cost(options.max_seconds)
+    results += live_feed_cost(options.max_seconds)
+    results += eight_at_once(options.max_seconds)
+    failed = finish(results, Path(options.out))
+    if options.soak:
+        failed |= soak.main(
+            ["--out", str(Path(options.out).with_name("bench-soak.json"))]
+        )
+    return failed
 
 
 def on_off_pair(
