@@ -1,0 +1,103 @@
+"""The SD card dialogue: Marlin's words about its card, as events."""
+
+from __future__ import annotations
+
+import pytest
+
+from printers.protocol.marlin_sd import (
+    SdCardState,
+    SdDeleted,
+    SdDeleteFailed,
+    SdDialogue,
+    SdDone,
+    SdFile,
+    SdFileOpened,
+    SdListed,
+    SdNotPrinting,
+    SdOpenFailed,
+    SdProgress,
+    SdSaved,
+    SdWriting,
+    short_name,
+)
+
+
+def feed(dialogue: SdDialogue, *lines: str) -> list[object]:
+    return [e for e in (dialogue.receive(line) for line in lines) if e is not None]
+
+
+def test_a_file_list_is_gathered_into_one_event_with_sizes_and_long_names():
+    dialogue = SdDialogue()
+    events = feed(
+        dialogue,
+        "Begin file list",
+        "CUBE.GCO 1024",
+        "PARTHO~1.GCO 55123 part holder v2.gcode",
+        "/SUBDIR/DEEP.GCO 7",
+        "End file list",
+    )
+    assert events == [
+        SdListed(
+            (
+                SdFile("CUBE.GCO", 1024),
+                SdFile("PARTHO~1.GCO", 55123, "part holder v2.gcode"),
+                SdFile("/SUBDIR/DEEP.GCO", 7),
+            )
+        )
+    ]
+    assert not dialogue.listing
+
+
+def test_lines_inside_a_listing_are_not_read_as_other_events():
+    dialogue = SdDialogue()
+    assert feed(dialogue, "Begin file list", "Done printing file") == []
+    assert dialogue.listing
+    assert feed(dialogue, "End file list") == [SdListed(())]
+
+
+@pytest.mark.parametrize(
+    ("line", "event"),
+    [
+        ("SD printing byte 120/1234", SdProgress(120, 1234)),
+        ("Not SD printing", SdNotPrinting()),
+        ("Done printing file", SdDone()),
+        ("File opened: CUBE.GCO Size: 1024", SdFileOpened("CUBE.GCO", 1024)),
+        ("echo:open failed, File: NOPE.GCO.", SdOpenFailed("NOPE.GCO")),
+        ("Writing to file: CUBE.GCO", SdWriting("CUBE.GCO")),
+        ("Done saving file.", SdSaved()),
+        ("File deleted:CUBE.GCO", SdDeleted("CUBE.GCO")),
+        ("Deletion failed, File: CUBE.GCO.", SdDeleteFailed("CUBE.GCO")),
+        ("echo:SD card ok", SdCardState(present=True, message="SD card ok")),
+        ("echo:No SD card", SdCardState(present=False, message="No SD card")),
+        ("echo:SD init fail", SdCardState(present=False, message="SD init fail")),
+    ],
+)
+def test_each_sd_answer_becomes_its_event(line: str, event: object):
+    assert SdDialogue().receive(line) == event
+
+
+@pytest.mark.parametrize("line", ["ok", "T:210.0 /210.0", "echo:busy: processing"])
+def test_lines_about_other_things_are_not_sd_events(line: str):
+    assert SdDialogue().receive(line) is None
+
+
+def test_progress_share_is_bounded():
+    assert SdProgress(50, 200).share == 0.25
+    assert SdProgress(0, 0).share == 0.0
+    assert SdProgress(300, 200).share == 1.0
+
+
+@pytest.mark.parametrize(
+    ("name", "taken", "short"),
+    [
+        ("cube.gcode", set(), "CUBE.GCO"),
+        ("part holder v2.gcode", set(), "PARTHO~1.GCO"),
+        ("part holder v2.gcode", {"PARTHO~1.GCO"}, "PARTHO~2.GCO"),
+        ("cube.gcode", {"CUBE.GCO"}, "CUBE~1.GCO"),
+        ("Grüße.g", set(), "GRUSSE.G"),
+        ("...", set(), "FILE"),
+        ("noext", set(), "NOEXT"),
+    ],
+)
+def test_short_names_fit_eight_dot_three_and_avoid_taken_names(name, taken, short):
+    assert short_name(name, taken) == short
