@@ -71,14 +71,19 @@ def enqueue_job(
     copying it, so a large upload is written to disk once.
     """
     name = safe_name(name or source.name)
-    limit = LinkConfig.from_printer(printer).command_limit
+    config = LinkConfig.from_printer(printer)
     size = source.stat().st_size if source.is_file() else 0
     if size > settings.PRINTHOST_MAX_JOB_BYTES:
         raise BadGcode(
             f"{name}: {size} bytes is over the limit of "
             f"{settings.PRINTHOST_MAX_JOB_BYTES} bytes"
         )
-    facts = inspect_file(source, max_command_length=limit, name=name)
+    facts = inspect_file(
+        source,
+        max_command_length=config.command_limit,
+        name=name,
+        grbl=config.firmware == "grbl",
+    )
     target = stored_file(printer, f"{uuid.uuid4().hex[:8]}-{name}")
     if move:
         shutil.move(source, target)
@@ -190,8 +195,13 @@ def queue_stored_file(printer: Printer, stored_name: str, *, origin: str = "") -
 
 def check_stored_file(printer: Printer, path: Path, *, name: str) -> FileFacts:
     """The upload checks (binary, too-long or unsendable lines) for a stored file."""
-    limit = LinkConfig.from_printer(printer).command_limit
-    return inspect_file(path, max_command_length=limit, name=name)
+    config = LinkConfig.from_printer(printer)
+    return inspect_file(
+        path,
+        max_command_length=config.command_limit,
+        name=name,
+        grbl=config.firmware == "grbl",
+    )
 
 
 def _create_job(
