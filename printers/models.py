@@ -35,6 +35,22 @@ def validate_simulator(value: str) -> None:
         )
 
 
+def validate_script(value: str) -> None:
+    """Every line of a script is one the firmware's protocol takes (printable ASCII).
+
+    Scripts are sent as written (comments removed), so a line the protocol would
+    refuse is refused here, with its number, instead of failing around a job.
+    """
+    from jobs.gcode import command_problem
+    from printers.protocol.checksum import clean_line
+
+    for number, raw in enumerate(value.splitlines(), start=1):
+        text = clean_line(raw)
+        problem = command_problem(text) if text else ""
+        if problem:
+            raise ValidationError(f"line {number}: {problem}", code="script")
+
+
 class Printer(models.Model):
     """One machine on one port, driven by exactly one worker (the lease says which)."""
 
@@ -103,12 +119,16 @@ class Printer(models.Model):
     status_interval = models.FloatField(
         default=0.2, help_text="GRBL: seconds between `?` status polls (0 = off)"
     )
-    connect_script = models.TextField(blank=True)
-    start_script = models.TextField(blank=True, help_text="runs before each job")
-    end_script = models.TextField(blank=True, help_text="runs after a completed job")
-    pause_script = models.TextField(blank=True)
-    resume_script = models.TextField(blank=True)
-    abort_script = models.TextField(blank=True)
+    connect_script = models.TextField(blank=True, validators=[validate_script])
+    start_script = models.TextField(
+        blank=True, validators=[validate_script], help_text="runs before each job"
+    )
+    end_script = models.TextField(
+        blank=True, validators=[validate_script], help_text="runs after a completed job"
+    )
+    pause_script = models.TextField(blank=True, validators=[validate_script])
+    resume_script = models.TextField(blank=True, validators=[validate_script])
+    abort_script = models.TextField(blank=True, validators=[validate_script])
     auto_start = models.BooleanField(
         default=False, help_text="start the next job without waiting for a clear bed"
     )

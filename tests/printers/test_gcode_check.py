@@ -84,3 +84,31 @@ def test_grbl_files_may_not_hold_realtime_characters_in_a_line(tmp_path):
     inspect_file(path)  # Marlin takes it
     with pytest.raises(BadGcode, match=r"line 3: '!' is a GRBL realtime command"):
         inspect_file(path, grbl=True)
+
+
+@pytest.mark.django_db
+def test_printer_scripts_the_protocol_would_refuse_are_refused_with_their_line(
+    make_printer, django_user_model, client
+):
+    from printhost.access import issue_key
+
+    printer = make_printer()
+    root = django_user_model.objects.create_superuser("root", "", "pw")
+    _, key = issue_key(root, "t")
+    response = client.patch(
+        f"/printer/config/{printer.slug}",
+        {"end_script": "M104 S0 ; Düse aus\nM117 Fertig ✓\n"},
+        content_type="application/json",
+        HTTP_X_API_KEY=key,
+    )
+    assert response.status_code == 400, response.content
+    assert "end_script: line 2: '✓' (U+2713) cannot be sent" in response.json()["error"]
+    printer.refresh_from_db()
+    assert printer.end_script == ""
+    response = client.patch(
+        f"/printer/config/{printer.slug}",
+        {"end_script": "M104 S0 ; Düse aus\nM117 Fertig\n"},
+        content_type="application/json",
+        HTTP_X_API_KEY=key,
+    )
+    assert response.status_code == 200, response.content
