@@ -127,3 +127,63 @@ def test_stored_paths_in_the_tree_are_resolved(tmp_path: Path) -> None:
     real.mkdir()
     (tmp_path / "alias").symlink_to(real)
     assert inside(tmp_path / "alias", "a.gcode") == real.resolve() / "a.gcode"
+
+
+@pytest.mark.django_db
+def test_upload_names_of_every_dialect_stay_in_the_storage(
+    make_printer, django_user_model, client, tmp_path
+):
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    from printhost.access import issue_key
+    from printhost.models import PrinterRole, Role
+
+    printer = make_printer(slug="mk3")
+    user = django_user_model.objects.create_user("op", password="pw")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.OPERATOR)
+    _, key = issue_key(user, "t")
+    evil = "../../../evil.gcode"
+
+    def part() -> SimpleUploadedFile:
+        return SimpleUploadedFile(evil, b"G28\nG1 X1\n")
+
+    answers = [
+        client.post(
+            "/printer/job/mk3",
+            {"a": "upload", "name": evil, "filename": part()},
+            HTTP_X_API_KEY=key,
+        ),
+        client.post(
+            "/p/mk3/api/files/local",
+            {"file": part(), "path": "../../..", "print": "false"},
+            HTTP_X_API_KEY=key,
+        ),
+        client.post(
+            "/p/mk3/server/files/upload",
+            {"file": part(), "path": "../../..", "root": "gcodes"},
+            HTTP_X_API_KEY=key,
+        ),
+    ]
+    session = client.post(
+        f"/printer/upload/mk3?name={evil}&size=10", HTTP_X_API_KEY=key
+    )
+    assert session.status_code in (200, 201), session.content
+    upload_id = session.json()["data"]["id"]
+    answers.append(
+        client.patch(
+            f"/printer/upload/mk3/{upload_id}",
+            b"G28\nG1 X1\n",
+            content_type="application/offset+octet-stream",
+            HTTP_UPLOAD_OFFSET="0",
+            HTTP_X_API_KEY=key,
+        )
+    )
+    for answer in answers:
+        assert answer.status_code in (200, 201), answer.content
+    storage = storage_dir(printer).resolve()
+    jobs = list(Job.objects.filter(printer=printer))
+    assert len(jobs) == 4
+    for job in jobs:
+        assert job.path.parent == storage
+        assert "/" not in job.name and ".." not in job.name
+    assert not list(tmp_path.rglob("evil.gcode"))
