@@ -22,6 +22,10 @@ class TransportClosed(TransportError):
     """The port went away (unplugged, simulator gone, socket closed)."""
 
 
+class PortNotAllowed(TransportError):
+    """The port is not one printhost may open (`printers.ports`); retrying won't help."""
+
+
 class SerialTransport:
     """One open port. `read(timeout)` returns b"" on timeout, raises TransportClosed at EOF."""
 
@@ -42,7 +46,7 @@ class SerialTransport:
         try:
             check_configured_port(url)
         except PortRefused as error:
-            raise TransportError(f"cannot open port: {error}") from None
+            raise PortNotAllowed(f"cannot open port: {error}") from None
         try:
             port = serial.serial_for_url(
                 url, baudrate=baud, timeout=0, write_timeout=10, exclusive=True
