@@ -1,8 +1,24 @@
-"""Reading stored G-code: cleaned commands with byte offsets, and upload sanity checks."""
+"""Reading stored G-code: cleaned commands with byte offsets, and upload sanity checks.
+
+The upload check and the stream read a file through the same `command_of`, so what
+passes the check is exactly what the protocol is given, and the protocol never
+refuses a line of an accepted file mid-print (printers/protocol F4: printable ASCII
+only; GRBL also refuses its realtime characters `?`, `!`, `~` inside a line):
+
+- comments (`;`, `(...)`) are never sent, so any text may sit in them;
+- whitespace inside a command (a tab) is sent as a space;
+- a message for the display or the host (M117, M118, M0, M1) is sent as ASCII:
+  accented letters lose their accents (`Grüße` -> `Grusse`), other characters
+  become `?`. A message is for people; a print must not stop over a glyph;
+- any other character outside printable ASCII (`G1 X1Ü`, a DEL byte) refuses the
+  file at upload, naming the line: its meaning cannot be guessed.
+"""
 
 from __future__ import annotations
 
 import hashlib
+import re
+import unicodedata
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -37,6 +53,74 @@ class FileFacts:
     longest: int
 
 
+#: Marlin commands whose argument is free text for people (a display, the host).
+_MESSAGE = re.compile(r"^M(0|1|117|118)(?![0-9])", re.IGNORECASE)
+#: Letters NFKD does not take apart into ASCII.
+_SPELLED = {
+    "ß": "ss", "æ": "ae", "Æ": "AE", "œ": "oe", "Œ": "OE", "ø": "o", "Ø": "O",
+    "ł": "l", "Ł": "L", "đ": "d", "Đ": "D", "þ": "th", "Þ": "Th", "°": "deg",
+}  # fmt: skip
+_GRBL_REALTIME = "?!~"
+
+
+def _printable(char: str) -> bool:
+    return " " <= char <= "~"
+
+
+def _ascii_message(text: str) -> str:
+    """A message as printable ASCII: accents dropped, the rest `?`."""
+    out = []
+    for char in text:
+        if _printable(char):
+            out.append(char)
+            continue
+        spelled = _SPELLED.get(char)
+        if spelled is None:
+            plain = unicodedata.normalize("NFKD", char)
+            spelled = "".join(c for c in plain if _printable(c)) or "?"
+        out.append(spelled)
+    return "".join(out)
+
+
+def command_of(raw: bytes) -> str:
+    """The command a raw file line sends: comments out, as the firmware gets it.
+
+    "" for a line with nothing to send. The result may still hold characters the
+    firmware cannot take (outside messages); `command_problem` says which.
+    """
+    text = clean_line(raw.decode("utf-8", "replace"))
+    if not text:
+        return ""
+    text = "".join(" " if char.isspace() else char for char in text)
+    if _MESSAGE.match(text):
+        text = _ascii_message(text)
+    return text
+
+
+def command_problem(text: str, *, grbl: bool = False) -> str:
+    """Why the firmware's protocol would refuse *text* (from `command_of`), or ""."""
+    bad = next((char for char in text if not _printable(char)), None)
+    if bad is not None:
+        if ord(bad) < 0x80:
+            what = f"control byte 0x{ord(bad):02x}"
+        elif bad == "\ufffd":
+            what = "a byte that is not UTF-8 text"
+        else:
+            what = f"{bad!r} (U+{ord(bad):04X})"
+        return (
+            f"{what} cannot be sent: the firmware takes printable ASCII only "
+            "(comments and M117/M118 messages may hold any text)"
+        )
+    if grbl:
+        realtime = next((char for char in text if char in _GRBL_REALTIME), None)
+        if realtime is not None:
+            return (
+                f"{realtime!r} is a GRBL realtime command: inside a line it would "
+                "act at once"
+            )
+    return ""
+
+
 def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
     """Yield the commands of *path* in order, comments and blank lines skipped.
 
@@ -47,7 +131,7 @@ def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
     with path.open("rb") as handle:
         for number, raw in enumerate(handle, start=1):
             offset += len(raw)
-            text = clean_line(raw.decode("ascii", "replace"))
+            text = command_of(raw)
             if not text:
                 continue
             if index >= start_index:
@@ -56,7 +140,7 @@ def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
 
 
 def inspect_file(
-    path: Path, *, max_command_length: int = 0, name: str = ""
+    path: Path, *, max_command_length: int = 0, name: str = "", grbl: bool = False
 ) -> FileFacts:
     """Check that *path* is a printable G-code file and measure it.
 
@@ -64,7 +148,9 @@ def inspect_file(
 
     1. Read it in chunks, hashing as we go (SHA-256).
     2. Reject NUL bytes and non-ASCII control bytes: a binary file.
-    3. Count commands; reject a command longer than *max_command_length* (if set).
+    3. Count commands (as `command_of` gives them to the firmware); reject one the
+       protocol would refuse (`command_problem`, GRBL's rules when *grbl*) or one
+       longer than *max_command_length* (if set).
     4. Reject a file with no command at all.
     """
     name = name or path.name
@@ -79,9 +165,12 @@ def inspect_file(
             size += len(raw)
             digest.update(raw)
             _check_text(raw, number, name)
-            text = clean_line(raw.decode("ascii", "replace"))
+            text = command_of(raw)
             if not text:
                 continue
+            problem = command_problem(text, grbl=grbl)
+            if problem:
+                raise BadGcode(f"{name} line {number}: {problem}: {text[:40]!r}")
             commands += 1
             longest = max(longest, len(text))
             if max_command_length and len(text) > max_command_length:

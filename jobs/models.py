@@ -9,6 +9,7 @@ from django.conf import settings
 from django.db import models
 from django.utils import timezone
 
+from jobs.paths import inside
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -68,8 +69,9 @@ class Job(models.Model):
 
     @property
     def path(self) -> Path:
-        """Absolute path of the stored file."""
-        return Path(settings.JOB_STORAGE_DIR) / self.file
+        """Absolute path of the stored file (PathRefused if the row names one outside
+        the job storage: a row is never trusted to stay in it)."""
+        return inside(Path(settings.JOB_STORAGE_DIR), self.file)
 
     @property
     def progress(self) -> float:
@@ -172,8 +174,8 @@ class Upload(models.Model):
 
     @property
     def partial_path(self) -> Path:
-        """Absolute path of the partial file."""
-        return Path(settings.JOB_STORAGE_DIR) / self.path
+        """Absolute path of the partial file (inside the job storage, or PathRefused)."""
+        return inside(Path(settings.JOB_STORAGE_DIR), self.path, hidden=True)
 
 
 def running_job(printer_id: int) -> Job | None:

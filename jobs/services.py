@@ -16,6 +16,7 @@ from django.db import transaction
 
 from jobs.gcode import BadGcode, FileFacts, inspect_file
 from jobs.models import Job
+from jobs.paths import inside
 from printers.driver import LinkConfig
 from printers.models import Printer, QueuedCommand
 from printers.worker.spool import next_position
@@ -34,6 +35,11 @@ def storage_dir(printer: Printer) -> Path:
     path = Path(settings.JOB_STORAGE_DIR) / printer.slug
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def stored_file(printer: Printer, name: str) -> Path:
+    """The file *name* in the printer's storage (PathRefused if it would leave it)."""
+    return inside(storage_dir(printer), name)
 
 
 def safe_name(name: str) -> str:
@@ -65,15 +71,20 @@ def enqueue_job(
     copying it, so a large upload is written to disk once.
     """
     name = safe_name(name or source.name)
-    limit = LinkConfig.from_printer(printer).command_limit
+    config = LinkConfig.from_printer(printer)
     size = source.stat().st_size if source.is_file() else 0
     if size > settings.PRINTHOST_MAX_JOB_BYTES:
         raise BadGcode(
             f"{name}: {size} bytes is over the limit of "
             f"{settings.PRINTHOST_MAX_JOB_BYTES} bytes"
         )
-    facts = inspect_file(source, max_command_length=limit, name=name)
-    target = storage_dir(printer) / f"{uuid.uuid4().hex[:8]}-{name}"
+    facts = inspect_file(
+        source,
+        max_command_length=config.command_limit,
+        name=name,
+        grbl=config.firmware == "grbl",
+    )
+    target = stored_file(printer, f"{uuid.uuid4().hex[:8]}-{name}")
     if move:
         shutil.move(source, target)
     else:
@@ -98,7 +109,7 @@ def enqueue_upload(
     *sha256*, when given, must match the stored file (Moonraker's `checksum`).
     """
     name = safe_name(name)
-    staging = storage_dir(printer) / f".upload-{uuid.uuid4().hex}"
+    staging = inside(storage_dir(printer), f".upload-{uuid.uuid4().hex}", hidden=True)
     temp_path = getattr(upload, "temporary_file_path", None)
     try:
         if temp_path is not None:
@@ -172,11 +183,25 @@ def queue_job(job: Job) -> bool:
 
 
 def queue_stored_file(printer: Printer, stored_name: str, *, origin: str = "") -> Job:
-    """Queue a file already in the printer's storage ([ESP700]stream=/sd/...)."""
-    path = storage_dir(printer) / safe_name(stored_name)
-    limit = LinkConfig.from_printer(printer).command_limit
-    facts = inspect_file(path, max_command_length=limit)
+    """Queue a file already in the printer's storage ([ESP700]stream=/sd/...).
+
+    The name must stay inside the storage (`stored_file`), and the file passes the
+    upload checks (`check_stored_file`) before a job exists for it.
+    """
+    path = stored_file(printer, stored_name)
+    facts = check_stored_file(printer, path, name=stored_name)
     return _create_job(printer, path, path.name, facts, origin)
+
+
+def check_stored_file(printer: Printer, path: Path, *, name: str) -> FileFacts:
+    """The upload checks (binary, too-long or unsendable lines) for a stored file."""
+    config = LinkConfig.from_printer(printer)
+    return inspect_file(
+        path,
+        max_command_length=config.command_limit,
+        name=name,
+        grbl=config.firmware == "grbl",
+    )
 
 
 def _create_job(
@@ -189,7 +214,7 @@ def _create_job(
     user: AbstractBaseUser | None = None,
     state: str = Job.State.QUEUED,
 ) -> Job:
-    relative = path.relative_to(Path(settings.JOB_STORAGE_DIR))
+    relative = path.resolve().relative_to(Path(settings.JOB_STORAGE_DIR).resolve())
     with transaction.atomic():
         return Job.objects.create(
             state=state,

@@ -15,6 +15,9 @@ if TYPE_CHECKING:
 from printhost.access import admin_caller
 from printhost.audit import record
 
+#: Printer fields only a superuser may change (what the server opens and runs).
+SUPERUSER_FIELDS = ("port", "baud", "simulator")
+
 
 @admin.register(Printer)
 class PrinterAdmin(admin.ModelAdmin):
@@ -70,6 +73,15 @@ class PrinterAdmin(admin.ModelAdmin):
         ("Other", {"fields": ["response_log_limit", "terminal_port", "simulator"]}),
         ("Live (written by the worker)", {"fields": readonly_fields}),
     ]
+
+    def get_readonly_fields(
+        self, request: HttpRequest, obj: Printer | None = None
+    ) -> list[str]:
+        """Port, baud and simulator decide what the server opens: superusers only."""
+        fields = list(super().get_readonly_fields(request, obj))
+        if not request.user.is_superuser:
+            fields += [name for name in SUPERUSER_FIELDS if name not in fields]
+        return fields
 
     @admin.action(description="The bed is clear: start the next job")
     def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:

@@ -2,10 +2,53 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from django.conf import settings
+from django.core.exceptions import ValidationError
 from django.core.validators import MaxValueValidator, MinValueValidator, RegexValidator
 from django.db import models
 
+from printers.ports import PortRefused, check_configured_port, simulator_paths_outside
+
 _SLUG = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - and _")
+
+
+def validate_port(value: str) -> None:
+    """A port printhost may open (`printers.ports`): device paths, listed hosts."""
+    try:
+        check_configured_port(value)
+    except PortRefused as error:
+        raise ValidationError(str(error), code="port") from None
+
+
+def validate_simulator(value: str) -> None:
+    """Simulator arguments whose --record, --link and --control stay in the data dir."""
+    if not value:
+        return
+    outside = simulator_paths_outside(value, data_dir=Path(settings.DATA_DIR))
+    if outside:
+        raise ValidationError(
+            f"{'; '.join(outside)}: simulator files must be inside the data "
+            "directory (PRINTHOST_DATA_DIR)",
+            code="simulator",
+        )
+
+
+def validate_script(value: str) -> None:
+    """Every line of a script is one the firmware's protocol takes (printable ASCII).
+
+    Scripts are sent as written (comments removed), so a line the protocol would
+    refuse is refused here, with its number, instead of failing around a job.
+    """
+    from jobs.gcode import command_problem
+    from printers.protocol.checksum import clean_line
+
+    for number, raw in enumerate(value.splitlines(), start=1):
+        text = clean_line(raw)
+        problem = command_problem(text) if text else ""
+        if problem:
+            raise ValidationError(f"line {number}: {problem}", code="script")
 
 
 class Printer(models.Model):
@@ -41,7 +84,10 @@ class Printer(models.Model):
     enabled = models.BooleanField(default=True, help_text="runhost starts a worker")
     port = models.CharField(
         max_length=255,
-        help_text="/dev/ttyUSB0, a pty path, socket://host:port or rfc2217://host:port",
+        validators=[validate_port],
+        help_text="/dev/ttyUSB0, /dev/serial/by-id/..., a simulator's link in the data "
+        "directory, or socket://host:port / rfc2217://host:port to a host listed in "
+        "PRINTHOST_PORT_HOSTS",
     )
     baud = models.PositiveIntegerField(default=115200)
     firmware = models.CharField(
@@ -73,12 +119,16 @@ class Printer(models.Model):
     status_interval = models.FloatField(
         default=0.2, help_text="GRBL: seconds between `?` status polls (0 = off)"
     )
-    connect_script = models.TextField(blank=True)
-    start_script = models.TextField(blank=True, help_text="runs before each job")
-    end_script = models.TextField(blank=True, help_text="runs after a completed job")
-    pause_script = models.TextField(blank=True)
-    resume_script = models.TextField(blank=True)
-    abort_script = models.TextField(blank=True)
+    connect_script = models.TextField(blank=True, validators=[validate_script])
+    start_script = models.TextField(
+        blank=True, validators=[validate_script], help_text="runs before each job"
+    )
+    end_script = models.TextField(
+        blank=True, validators=[validate_script], help_text="runs after a completed job"
+    )
+    pause_script = models.TextField(blank=True, validators=[validate_script])
+    resume_script = models.TextField(blank=True, validators=[validate_script])
+    abort_script = models.TextField(blank=True, validators=[validate_script])
     auto_start = models.BooleanField(
         default=False, help_text="start the next job without waiting for a clear bed"
     )
@@ -88,7 +138,9 @@ class Printer(models.Model):
     simulator = models.CharField(
         max_length=255,
         blank=True,
-        help_text="simulate_printer arguments; runhost starts this simulator",
+        validators=[validate_simulator],
+        help_text="simulate_printer arguments; runhost starts this simulator (its "
+        "--link, --record and --control paths inside the data directory)",
     )
     terminal_port = models.PositiveIntegerField(
         null=True,

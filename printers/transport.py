@@ -1,7 +1,7 @@
 """The serial link: pyserial's serial_for_url behind read(timeout) / write(bytes) / close().
 
-Any URL pyserial knows works as a printer port: `/dev/ttyUSB0`, a pty path,
-`socket://host:port`, `rfc2217://host:port`. The transport knows nothing of G-code.
+The ports `printers.ports` allows work: `/dev/ttyUSB0`, a pty link in the data
+directory, `socket://host:port` and `rfc2217://host:port` to listed hosts. The transport knows nothing of G-code.
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ import select
 
 import serial
 
+from printers.ports import PortRefused, check_configured_port
+
 
 class TransportError(Exception):
     """The port could not be opened or used; the message says which and why."""
@@ -18,6 +20,10 @@ class TransportError(Exception):
 
 class TransportClosed(TransportError):
     """The port went away (unplugged, simulator gone, socket closed)."""
+
+
+class PortNotAllowed(TransportError):
+    """The port is not one printhost may open (`printers.ports`); retrying won't help."""
 
 
 class SerialTransport:
@@ -32,7 +38,15 @@ class SerialTransport:
 
     @classmethod
     def open(cls, url: str, baud: int) -> SerialTransport:
-        """Open *url* at *baud*; TransportError with a clear message if it fails."""
+        """Open *url* at *baud*; TransportError with a clear message if it fails.
+
+        Only ports `printers.ports` allows are opened (a row stored before that
+        check, or written around it, must not reach `spy://` or another service).
+        """
+        try:
+            check_configured_port(url)
+        except PortRefused as error:
+            raise PortNotAllowed(f"cannot open port: {error}") from None
         try:
             port = serial.serial_for_url(
                 url, baudrate=baud, timeout=0, write_timeout=10, exclusive=True

@@ -152,3 +152,8 @@ LOGGING = {
 LOGIN_URL = "/accounts/login/"
 LOGIN_REDIRECT_URL = "/"
 LOGOUT_REDIRECT_URL = "/accounts/login/"
+
+# -- Printer ports (printers/ports.py) ---------------------------------------------
+#: `host:port` pairs a printer's port may reach as socket:// or rfc2217:// (comma
+#: separated; empty = none). Device paths and links in the data directory need none.
+PRINTHOST_PORT_HOSTS = env_list("PRINTHOST_PORT_HOSTS", [])

@@ -58,8 +58,10 @@ def wait_for(
 
 @pytest.fixture
 def storage(settings: object, tmp_path: Path) -> Path:
-    """Job files inside this test's folder, and a fast worker poll."""
+    """Job files and the data directory inside this test's folder; a fast poll."""
     settings.JOB_STORAGE_DIR = tmp_path / "jobs"  # type: ignore[attr-defined]
+    # The simulators' pty links are here: printers.ports lets a worker open them.
+    settings.DATA_DIR = tmp_path  # type: ignore[attr-defined]
     settings.PRINTHOST_POLL_SECONDS = 0.02  # type: ignore[attr-defined]
     return tmp_path / "jobs"
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -80,6 +81,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         faults = Faults(_fault_config(parser, args))
     except SystemExit as stop:
         return stop.code if isinstance(stop.code, int) else 2
+    outside = _record_outside_data_dir(args.record)
+    if outside:
+        return _fail(parser, outside)
     try:
         recorder = Recorder(args.record) if args.record else None
     except OSError as error:
@@ -96,6 +100,19 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     finally:
         simulator.close()
     return 0
+
+
+def _record_outside_data_dir(record: Path | None) -> str:
+    """Under printhost (PRINTHOST_DATA_DIR set, as runhost's children have it) the
+    record file must stay in the data directory; "" when it does or is not asked."""
+    data_dir = os.environ.get("PRINTHOST_DATA_DIR", "")
+    if record is None or not data_dir:
+        return ""
+    root = Path(data_dir).resolve()
+    target = record.resolve()
+    if target.is_relative_to(root) and target != root:
+        return ""
+    return f"--record {record}: must be inside the data directory {root}"
 
 
 def _fail(parser: argparse.ArgumentParser, message: str) -> int:

@@ -91,8 +91,9 @@ def _parse_700(
         ("fs", False): StreamType.FS_FILE_SCRIPT,
     }
     name = path.split("/", 2)[2]
-    if not name or ".." in name.split("/"):
-        raise EspError(f"[ESP700] {path!r}: not a file name")
+    if not name or name.startswith("/") or ".." in name.split("/"):
+        # The worker resolves the name inside the printer's storage too (symlinks).
+        raise EspError(f"[ESP700] {path!r}: not a file name in /{storage}/")
     return EspFileRequest(kinds[storage, streaming], name, as_json)
 
 

@@ -168,17 +168,18 @@ class RequestPoller:
         return reply
 
     def _esp_file(self, request: EspFileRequest, origin: str) -> str:
-        from jobs.services import queue_stored_file, storage_dir
+        from jobs.services import check_stored_file, queue_stored_file, stored_file
 
         printer = self.worker.printer
         if request.type.is_stream:
             job = queue_stored_file(printer, request.path, origin=origin)
             return esp_reply(700, f"queued as job {job.pk}", as_json=request.as_json)
-        path = storage_dir(printer) / request.path
+        path = stored_file(printer, request.path)
         if not path.is_file():
             raise EspError(
                 f"[ESP700] no file {request.path!r} in the printer's storage"
             )
+        check_stored_file(printer, path, name=request.path)
         lines = (Line(c.index, c.text, c.end_offset) for c in iter_commands(path))
         self.worker.host.submit(
             Stream(request.type, lines, name=request.path, origin=origin)

@@ -1,6 +1,7 @@
 """The admin role's API: configure a printer, and give users roles.
 
-An admin of a printer may change its settings; an admin of every printer may also
+An admin of a printer may change its settings, except its port and baud (a
+superuser's: they decide what the server opens); an admin of every printer may also
 give and take roles. (Superusers are admins everywhere; the Django admin does the
 same through its forms.) `runhost` notices a changed printer within seconds and
 restarts its worker with the new settings.
@@ -33,6 +34,8 @@ SETTINGS = (
     "end_script", "pause_script", "resume_script", "abort_script", "auto_start",
     "response_log_limit",
 )  # fmt: skip
+#: Settings only a superuser may change: they name what the server opens.
+SUPERUSER_SETTINGS = ("port", "baud")
 ROLE_NAMES = {"viewer": Role.VIEWER, "operator": Role.OPERATOR, "admin": Role.ADMIN}
 
 
@@ -60,10 +63,25 @@ def change_config(request: HttpRequest, slug: str) -> JsonResponse:
     unknown = sorted(set(changes) - set(SETTINGS))
     if unknown:
         raise HttpError(400, f"not a printer setting: {', '.join(unknown)}")
+    caller = caller_of(request)
+    guarded = sorted(
+        name
+        for name in SUPERUSER_SETTINGS
+        if name in changes and changes[name] != getattr(printer, name)
+    )
+    if guarded and not getattr(caller.user, "is_superuser", False):
+        raise HttpError(
+            403,
+            f"changing a printer's {' and '.join(guarded)} needs a superuser "
+            "(it decides what the server opens)",
+        )
     for name, value in changes.items():
         setattr(printer, name, value)
     try:
-        printer.full_clean()
+        # Only what changes is checked: a setting stored before a check existed
+        # does not block changing another one (the worker refuses a bad port).
+        unchanged = [f.name for f in printer._meta.fields if f.name not in changes]
+        printer.full_clean(exclude=unchanged, validate_unique=True)
     except (ModelValidationError, TypeError, ValueError) as error:
         messages = getattr(error, "message_dict", None) or {"": [str(error)]}
         text = "; ".join(
@@ -71,9 +89,7 @@ def change_config(request: HttpRequest, slug: str) -> JsonResponse:
         )
         raise HttpError(400, f"invalid settings: {text}") from None
     printer.save(update_fields=list(changes))
-    record(
-        caller_of(request), "printer.configure", printer=printer, detail=str(changes)
-    )
+    record(caller, "printer.configure", printer=printer, detail=str(changes))
     return envelope(_settings_of(printer))
 
 

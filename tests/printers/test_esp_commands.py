@@ -133,3 +133,26 @@ def test_esp701_with_nothing_running_says_idle_and_pause_is_refused(worker):
     assert reply_of(send_command(printer, "[ESP701]"), worker) == "status: idle"
     reply = reply_of(send_command(printer, "[ESP701]action=PAUSE"), worker)
     assert reply == "error: no stream is running"
+
+
+@pytestmark_db
+def test_esp700_script_checks_the_file_like_an_upload_before_sending_a_line(worker):
+    printer = worker.printer
+    (storage_dir(printer) / "bin.gcode").write_bytes(b"M117 first\nG1 X1\x01\x02\n")
+    long_line = "M117 " + "x" * 200
+    (storage_dir(printer) / "long.gcode").write_text(f"M117 before\n{long_line}\n")
+
+    binary = reply_of(send_command(printer, "[ESP700]/sd/bin.gcode"), worker)
+    too_long = reply_of(send_command(printer, "[ESP700]/fs/long.gcode"), worker)
+    stream = reply_of(send_command(printer, "[ESP700]stream=/sd/bin.gcode"), worker)
+
+    assert binary.startswith("error: bin.gcode line 2: control byte 0x01")
+    assert too_long.startswith("error: long.gcode line 2: command is 205 characters")
+    assert stream.startswith("error: bin.gcode line 2")
+    assert reply_of(send_command(printer, "M117 marker"), worker) == "ok"
+    wait_for(lambda: "M117 marker" in worker.sim.executed(), 10, "the marker",
+             step=worker.tick)  # fmt: skip
+    executed = worker.sim.executed()
+    assert "M117 first" not in executed
+    assert "M117 before" not in executed
+    assert not Job.objects.exists()

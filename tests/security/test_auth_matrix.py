@@ -126,7 +126,7 @@ ENDPOINTS = [
     ep("DELETE", "/printer/upload/p/0123456789abcdef0123456789abcdef", OPERATOR),
     # The admin role.
     ep("GET", "/printer/config/p", ADMIN),
-    ep("PATCH", "/printer/config/p", ADMIN, body='json:{"baud": 250000}'),
+    ep("PATCH", "/printer/config/p", ADMIN, body='json:{"auto_start": true}'),
     ep("GET", "/api/users", ADMIN, scoped=False),
     ep(
         "POST",

@@ -7,9 +7,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from django.conf import settings
 from django.core.management.base import BaseCommand, CommandError
 
-from jobs.gcode import iter_commands
+from jobs.gcode import BadGcode, iter_commands
 from jobs.models import Job
 from printers.driver import FileDriver, LinkConfig
 from printers.protocol.errors import CommandRejected
@@ -35,15 +36,26 @@ class Command(BaseCommand):
             job = Job.objects.select_related("printer").get(pk=options["job_id"])
         except Job.DoesNotExist:
             raise CommandError(f"no job {options['job_id']}") from None
-        if not job.path.is_file():
+        try:
+            path = job.path
+        except BadGcode as error:
+            raise CommandError(f"job {job.pk}: {error}") from None
+        if not path.is_file():
             raise CommandError(f"job {job.pk}: its file {job.file} is missing")
+        output = options["output"]
+        storage = Path(settings.JOB_STORAGE_DIR).resolve()
+        if output != "-" and Path(output).resolve().is_relative_to(storage):
+            raise CommandError(
+                f"{output}: inside the job storage; write the export somewhere else "
+                "(it would overwrite or add a job file)"
+            )
         config = LinkConfig.from_printer(job.printer)
         if options["driver"]:
             config = replace(config, firmware=options["driver"])
         config = replace(config, checksums="always")
-        commands = (c.text for c in iter_commands(job.path))
+        commands = (c.text for c in iter_commands(path))
         try:
-            count = self._write(config, commands, options["output"])
+            count = self._write(config, commands, output)
         except CommandRejected as error:
             raise CommandError(f"job {job.pk}: {error}") from None
         self.stderr.write(f"wrote {count} lines for job {job.pk}")

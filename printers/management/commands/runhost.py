@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import signal
 from typing import TYPE_CHECKING, Any
 
+from django.conf import settings
 from django.core.management.base import BaseCommand
 
 from printers.supervisor import Supervisor
@@ -25,6 +27,8 @@ class Command(BaseCommand):
         parser.add_argument("--no-web", action="store_true", help="workers only")
 
     def handle(self, *args: Any, **options: Any) -> None:
+        # Children (simulators: their --record check) see the same data directory.
+        os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
         self.supervisor = Supervisor(
             bind=options["bind"], port=options["port"], serve_web=not options["no_web"]
         )
