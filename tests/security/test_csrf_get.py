@@ -16,25 +16,9 @@ import pytest
 
 from tests.conftest import wait_for
 from tests.hosts import Host
+from tests.security.browsers import browser_login
 
 pytestmark = pytest.mark.slow
-
-
-def browser_login(host: Host, username: str) -> httpx.Client:
-    """A browser session: the login form with its CSRF token, as a person would."""
-    browser = httpx.Client(base_url=host.url, timeout=30)
-    browser.get("/accounts/login/")
-    answer = browser.post(
-        "/accounts/login/",
-        data={
-            "username": username,
-            "password": username,
-            "csrfmiddlewaretoken": browser.cookies["csrftoken"],
-        },
-    )
-    assert answer.status_code == 302, answer.text
-    assert "sessionid" in browser.cookies
-    return browser
 
 
 @pytest.fixture(scope="module")
