@@ -10,11 +10,15 @@ from django.utils import timezone
 
 from printhost.access import issue_key
 from printhost.appkeys import decide
+from printhost.logins import ThrottledAdminLoginForm
 from printhost.models import ApiKey, AppKeyRequest, AuditEntry, PrinterRole, UserProfile
 
 if TYPE_CHECKING:
     from django.db.models import QuerySet
     from django.http import HttpRequest
+
+# The admin's login is throttled like every other password login.
+admin.site.login_form = ThrottledAdminLoginForm
 
 
 @admin.register(PrinterRole)

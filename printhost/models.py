@@ -163,3 +163,26 @@ class AuditEntry(models.Model):
 
     def __str__(self) -> str:
         return f"{self.time:%Y-%m-%d %H:%M:%S} {self.user} {self.action}"
+
+
+class LoginFailure(models.Model):
+    """One failed password check, kept for the throttling window (`printhost.logins`).
+
+    In the database, not a cache: printhost configures no shared cache, and every
+    daphne process (and every host behind one database) must see the same counts.
+    """
+
+    time = models.DateTimeField(auto_now_add=True)
+    #: As typed, case-folded: whether such a user exists is never looked up.
+    username = models.CharField(max_length=150)
+    address = models.CharField(max_length=64, blank=True)
+
+    class Meta:
+        indexes = [
+            # Counting one user's and one address's recent failures at each login.
+            models.Index(fields=["username", "time"], name="loginfailure_user_time"),
+            models.Index(fields=["address", "time"], name="loginfailure_addr_time"),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.time:%Y-%m-%d %H:%M:%S} {self.username} from {self.address}"

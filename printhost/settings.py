@@ -117,7 +117,13 @@ CELERY_BROKER_URL = REDIS_URL or "memory://"
 CELERY_TASK_ALWAYS_EAGER = not REDIS_URL
 
 AUTH_PASSWORD_VALIDATORS = [
+    {
+        "NAME": "django.contrib.auth.password_validation."
+        "UserAttributeSimilarityValidator"
+    },
     {"NAME": "django.contrib.auth.password_validation.MinimumLengthValidator"},
+    {"NAME": "django.contrib.auth.password_validation.CommonPasswordValidator"},
+    {"NAME": "django.contrib.auth.password_validation.NumericPasswordValidator"},
 ]
 
 LANGUAGE_CODE = "en-us"
@@ -152,3 +158,14 @@ LOGGING = {
 LOGIN_URL = "/accounts/login/"
 LOGIN_REDIRECT_URL = "/"
 LOGOUT_REDIRECT_URL = "/accounts/login/"
+
+# -- Logins and pairing (printhost/logins.py, printhost/appkeys.py) --------------------
+#: Every password check is throttled per user name and per address.
+AUTHENTICATION_BACKENDS = ["printhost.logins.ThrottledModelBackend"]
+#: Failed logins within the window that lock a user name / an address out.
+PRINTHOST_LOGIN_USER_FAILURES = int(env_float("PRINTHOST_LOGIN_USER_FAILURES", 5))
+PRINTHOST_LOGIN_ADDRESS_FAILURES = int(
+    env_float("PRINTHOST_LOGIN_ADDRESS_FAILURES", 20)
+)
+#: The throttling window (s): a lockout lifts this long after its failures.
+PRINTHOST_LOGIN_WINDOW_SECONDS = env_float("PRINTHOST_LOGIN_WINDOW_SECONDS", 900.0)
