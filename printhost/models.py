@@ -85,6 +85,13 @@ class ApiKey(models.Model):
         related_name="+",
         help_text="bind the key to one printer (uploads go there; others are refused)",
     )
+    #: The most this key may do: the user's role is capped at it (empty = no cap).
+    role = models.PositiveSmallIntegerField(
+        choices=Role.choices,
+        null=True,
+        blank=True,
+        help_text="at most this role (empty = the user's own roles)",
+    )
     created_at = models.DateTimeField(auto_now_add=True)
     last_used_at = models.DateTimeField(null=True, blank=True)
     revoked_at = models.DateTimeField(null=True, blank=True)
@@ -107,6 +114,7 @@ class AppKeyRequest(models.Model):
         PENDING = "pending", "pending"
         GRANTED = "granted", "granted"
         DENIED = "denied", "denied"
+        EXPIRED = "expired", "expired"
 
     app = models.CharField(max_length=100)
     user_hint = models.CharField(max_length=150, blank=True)
@@ -126,10 +134,15 @@ class AppKeyRequest(models.Model):
     handover = models.CharField(max_length=100, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     polled_at = models.DateTimeField(auto_now_add=True)
+    #: The requesting address (at most a few requests per address wait at once).
     origin = models.CharField(max_length=100, blank=True)
 
     class Meta:
         ordering = ["-created_at"]
+        indexes = [
+            # Counting the pending requests of one address (`appkeys.open_request`).
+            models.Index(fields=["origin", "state"], name="appkeyrequest_origin_state"),
+        ]
 
     def __str__(self) -> str:
         return f"{self.app} ({self.state})"

@@ -169,3 +169,9 @@ PRINTHOST_LOGIN_ADDRESS_FAILURES = int(
 )
 #: The throttling window (s): a lockout lifts this long after its failures.
 PRINTHOST_LOGIN_WINDOW_SECONDS = env_float("PRINTHOST_LOGIN_WINDOW_SECONDS", 900.0)
+#: A Cura pairing request expires this long (s) after it was made.
+PRINTHOST_APPKEY_REQUEST_SECONDS = env_float("PRINTHOST_APPKEY_REQUEST_SECONDS", 600.0)
+#: At most this many pairing requests of one address wait for a decision at once.
+PRINTHOST_APPKEY_PENDING_PER_ADDRESS = int(
+    env_float("PRINTHOST_APPKEY_PENDING_PER_ADDRESS", 3)
+)
