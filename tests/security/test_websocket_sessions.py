@@ -98,8 +98,16 @@ def test_the_live_feed_of_a_deactivated_user_closes_with_4401(host: Host) -> Non
         assert close_code(socket, CLOSE_WITHIN) == 4401
 
 
-def test_the_live_feed_of_a_flushed_session_closes_and_others_stay(
-    host: Host,
+#: How a session ends without its user logging out: flushed, or past its expiry.
+ENDINGS = {
+    "flushed": "delete()",
+    "expired": "update(expire_date=timezone.now() - timedelta(seconds=1))",
+}
+
+
+@pytest.mark.parametrize("ending", ENDINGS)
+def test_the_live_feed_of_an_ended_session_closes_and_others_stay(
+    host: Host, ending: str
 ) -> None:
     gone, kept = browser_login(host, "cy"), browser_login(host, "cy")
     session = gone.cookies["sessionid"]
@@ -108,8 +116,9 @@ def test_the_live_feed_of_a_flushed_session_closes_and_others_stay(
         live_feed(host, kept, "/ws/printers/mk3/") as staying,
     ):
         host.shell(
+            "from datetime import timedelta; from django.utils import timezone; "
             "from django.contrib.sessions.models import Session; "
-            f"Session.objects.filter(session_key={session!r}).delete()"
+            f"Session.objects.filter(session_key={session!r}).{ENDINGS[ending]}"
         )
         assert close_code(closing, CLOSE_WITHIN) == 4401
         # The same user's other session is untouched: it outlives two re-checks.
