@@ -8,7 +8,7 @@ function keyRow(key) {
   const tr = document.createElement("tr");
   tr.dataset.test = "key";
   tr.dataset.key = key.id;
-  const cells = [key.name, `ph_${key.prefix}…`, key.printer || "all", when(key.created), when(key.last_used) || "never", when(key.revoked) || "—"];
+  const cells = [key.name, `ph_${key.prefix}…`, key.printer || "all", key.role || "mine", when(key.created), when(key.last_used) || "never", when(key.revoked) || "—"];
   for (const text of cells) {
     const td = document.createElement("td");
     td.textContent = text;

@@ -125,6 +125,9 @@ def test_the_approver_binds_the_key_to_a_printer_with_the_role_they_choose(
     assert app.get("/printer/state/q").status_code == 403  # bound to p
     stored = ApiKey.objects.get(prefix=key[3:13])
     assert (stored.printer, stored.role) == (p, Role.VIEWER)
+    [listed] = boss.get("/api/keys").json()["data"]
+    assert (listed["printer"], listed["role"]) == ("p", "viewer")
+    assert "<td>viewer</td>" in boss.get("/account/").content.decode()
 
 
 def test_an_approver_cannot_grant_more_than_their_own_role(
