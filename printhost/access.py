@@ -201,6 +201,12 @@ class Caller:
             raise Forbidden(
                 f"this API key is bound to printer {self.key.printer.slug!r}"
             )
+        cap = self.key.role if self.key is not None else None
+        if cap is not None and cap < role:
+            raise Forbidden(
+                f"this API key may act as {Role(cap).label.split()[0]} at most;"
+                f" {Role(role).label.split()[0]} role needed"
+            )
         where = f"printer {printer.slug!r}" if printer else "every printer"
         raise Forbidden(
             f"{Role(role).label.split()[0]} role needed on {where}"

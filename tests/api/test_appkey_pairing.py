@@ -121,7 +121,9 @@ def test_the_approver_binds_the_key_to_a_printer_with_the_role_they_choose(
     key = granted_key(asked["Location"])
     app = Client(headers={"X-Api-Key": key})
     assert app.get("/printer/state/p").status_code == 200
-    assert app.post("/printer/send/p?cmd=M105").status_code == 403  # viewer only
+    refused = app.post("/printer/send/p?cmd=M105")
+    assert refused.status_code == 403
+    assert "may act as viewer at most" in refused.json()["error"]
     assert app.get("/printer/state/q").status_code == 403  # bound to p
     stored = ApiKey.objects.get(prefix=key[3:13])
     assert (stored.printer, stored.role) == (p, Role.VIEWER)
