@@ -19,12 +19,16 @@ import asyncio
 import json
 import logging
 from dataclasses import dataclass
+from importlib import import_module
 from typing import Any
 from urllib.parse import parse_qs
 
 from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
-from django.contrib.auth.models import AnonymousUser
+from django.conf import settings
+from django.contrib.auth import get_user
+from django.contrib.auth.models import AbstractBaseUser, AnonymousUser
+from django.http import HttpRequest
 
 from printers import broadcast, live
 from printers.models import Printer
@@ -83,10 +87,31 @@ def caller_from_scope(scope: dict[str, Any]) -> Caller:
         if caller is None:
             raise Refused(CLOSE_UNAUTHENTICATED, "invalid or revoked API key")
         return caller
-    user = scope.get("user") or AnonymousUser()
+    user = session_user(scope)
     if not user.is_authenticated:
+        if (scope.get("user") or AnonymousUser()).is_authenticated:
+            message = "your session ended (logged out, expired or deactivated)"
+            raise Refused(CLOSE_UNAUTHENTICATED, message)
         raise Refused(CLOSE_UNAUTHENTICATED, "log in or give an API key")
     return Caller(client="websocket", user=user, address=address)
+
+
+def session_user(scope: dict[str, Any]) -> AbstractBaseUser | AnonymousUser:
+    """The user the handshake's session names now, read afresh from the session store.
+
+    The scope's session and user were loaded once, at the handshake; a logout, a
+    flushed or expired session, a changed password or `is_active=False` since then
+    gives an anonymous user here (Django's own `get_user` rules), so the periodic
+    re-check closes the connection.
+    """
+    session_key = getattr(scope.get("session"), "session_key", None)
+    if not session_key:
+        return AnonymousUser()
+    request = HttpRequest()
+    request.session = import_module(settings.SESSION_ENGINE).SessionStore(
+        session_key=session_key
+    )
+    return get_user(request)
 
 
 def int_param(query: dict[str, str], name: str) -> int | None:
@@ -228,7 +253,8 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
     async def recheck(self) -> bool:
         """Follow changes of keys and roles; False when the connection was closed.
 
-        A revoked key or a lost role closes the connection (4401/4403); on the
+        A revoked key, a session that ended (logout, flushed, expired) or a user
+        deactivated, or a lost role closes the connection (4401/4403); on the
         all-printers feed a printer that became visible is added (from its newest
         line) and one that no longer is is dropped with a `gone` message.
         """

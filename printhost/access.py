@@ -49,9 +49,16 @@ def hash_key(raw: str) -> str:
 
 
 def issue_key(
-    user: AbstractBaseUser, name: str, *, printer: Printer | None = None
+    user: AbstractBaseUser,
+    name: str,
+    *,
+    printer: Printer | None = None,
+    role: int | None = None,
 ) -> tuple[ApiKey, str]:
-    """Create a key for *user*; returns the row and the key in clear (shown once)."""
+    """Create a key for *user* (bound to *printer*, capped at *role* if given).
+
+    Returns the row and the key in clear (shown once).
+    """
     prefix = _random(_PREFIX_LEN)
     raw = f"{KEY_START}{prefix}{_random(32)}"
     key = ApiKey.objects.create(
@@ -60,6 +67,7 @@ def issue_key(
         prefix=prefix,
         key_hash=hash_key(raw),
         printer=printer,
+        role=role,
     )
     return key, raw
 
@@ -120,6 +128,21 @@ def role_of(
     return best
 
 
+def highest_role(user: AbstractBaseUser | AnonymousUser) -> int | None:
+    """The highest role *user* holds on any printer (None: no role anywhere)."""
+    if not user.is_authenticated or not user.is_active:
+        return None
+    if user.is_superuser:
+        return Role.ADMIN
+    best = max(
+        PrinterRole.objects.filter(user=user).values_list("role", flat=True),
+        default=None,
+    )
+    if best is None and user.is_staff:
+        return Role.VIEWER
+    return best
+
+
 @dataclass
 class Caller:
     """One client's context: what ESP3D attaches to every message it routes."""
@@ -146,10 +169,15 @@ class Caller:
         return f"{self.client}:{who}{via}{at}"[:100]
 
     def role(self, printer: Printer | None) -> int | None:
+        """The user's role on *printer*, within what the key allows (printer, role)."""
         bound = self.key.printer_id if self.key is not None else None
         if printer is not None and bound not in (None, printer.pk):
             return None
-        return role_of(self.user, printer)
+        held = role_of(self.user, printer)
+        cap = self.key.role if self.key is not None else None
+        if held is None or cap is None:
+            return held
+        return min(held, cap)
 
     def can(self, printer: Printer | None, role: int) -> bool:
         held = self.role(printer)
@@ -172,6 +200,12 @@ class Caller:
         ):
             raise Forbidden(
                 f"this API key is bound to printer {self.key.printer.slug!r}"
+            )
+        cap = self.key.role if self.key is not None else None
+        if cap is not None and cap < role:
+            raise Forbidden(
+                f"this API key may act as {Role(cap).label.split()[0]} at most;"
+                f" {Role(role).label.split()[0]} role needed"
             )
         where = f"printer {printer.slug!r}" if printer else "every printer"
         raise Forbidden(

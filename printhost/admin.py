@@ -8,13 +8,17 @@ from django import forms
 from django.contrib import admin, messages
 from django.utils import timezone
 
-from printhost.access import issue_key
+from printhost.access import Forbidden, issue_key
 from printhost.appkeys import decide
+from printhost.logins import ThrottledAdminLoginForm
 from printhost.models import ApiKey, AppKeyRequest, AuditEntry, PrinterRole, UserProfile
 
 if TYPE_CHECKING:
     from django.db.models import QuerySet
     from django.http import HttpRequest
+
+# The admin's login is throttled like every other password login.
+admin.site.login_form = ThrottledAdminLoginForm
 
 
 @admin.register(PrinterRole)
@@ -32,7 +36,7 @@ class UserProfileAdmin(admin.ModelAdmin):
 class ApiKeyForm(forms.ModelForm):
     class Meta:
         model = ApiKey
-        fields = ["user", "name", "printer"]
+        fields = ["user", "name", "printer", "role"]
 
 
 @admin.register(ApiKey)
@@ -42,6 +46,7 @@ class ApiKeyAdmin(admin.ModelAdmin):
         "user",
         "prefix",
         "printer",
+        "role",
         "created_at",
         "last_used_at",
         "revoked_at",
@@ -77,7 +82,7 @@ class ApiKeyAdmin(admin.ModelAdmin):
         if change:
             super().save_model(request, obj, form, change)
             return
-        key, raw = issue_key(obj.user, obj.name, printer=obj.printer)
+        key, raw = issue_key(obj.user, obj.name, printer=obj.printer, role=obj.role)
         obj.pk, obj.prefix, obj.key_hash = key.pk, key.prefix, key.key_hash
         messages.warning(
             request,
@@ -94,7 +99,15 @@ class ApiKeyAdmin(admin.ModelAdmin):
 
 @admin.register(AppKeyRequest)
 class AppKeyRequestAdmin(admin.ModelAdmin):
-    list_display = ["app", "user_hint", "state", "created_at", "polled_at", "origin"]
+    list_display = [
+        "app",
+        "origin",
+        "user_hint",
+        "printer",
+        "state",
+        "created_at",
+        "polled_at",
+    ]
     list_filter = ["state"]
     exclude = ["handover", "app_token", "user_token"]
     readonly_fields = [
@@ -108,10 +121,17 @@ class AppKeyRequestAdmin(admin.ModelAdmin):
     ]
     actions = ["approve", "deny"]
 
-    @admin.action(description="Approve: give the app an API key of mine")
+    @admin.action(
+        description="Approve: give the app an API key of mine (operator at most;"
+        " the account page lets you choose the printer and role)"
+    )
     def approve(self, request: HttpRequest, queryset: QuerySet[AppKeyRequest]) -> None:
         for row in queryset.filter(state=AppKeyRequest.State.PENDING):
-            decide(row, request.user, grant=True)
+            try:
+                decide(row, request.user, grant=True)
+            except Forbidden as error:
+                messages.error(request, f"{row.app} from {row.origin}: {error}")
+                return
         messages.info(request, "approved; the app picks its key up at its next poll")
 
     @admin.action(description="Deny")

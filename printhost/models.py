@@ -85,6 +85,13 @@ class ApiKey(models.Model):
         related_name="+",
         help_text="bind the key to one printer (uploads go there; others are refused)",
     )
+    #: The most this key may do: the user's role is capped at it (empty = no cap).
+    role = models.PositiveSmallIntegerField(
+        choices=Role.choices,
+        null=True,
+        blank=True,
+        help_text="at most this role (empty = the user's own roles)",
+    )
     created_at = models.DateTimeField(auto_now_add=True)
     last_used_at = models.DateTimeField(null=True, blank=True)
     revoked_at = models.DateTimeField(null=True, blank=True)
@@ -107,6 +114,7 @@ class AppKeyRequest(models.Model):
         PENDING = "pending", "pending"
         GRANTED = "granted", "granted"
         DENIED = "denied", "denied"
+        EXPIRED = "expired", "expired"
 
     app = models.CharField(max_length=100)
     user_hint = models.CharField(max_length=150, blank=True)
@@ -126,10 +134,15 @@ class AppKeyRequest(models.Model):
     handover = models.CharField(max_length=100, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     polled_at = models.DateTimeField(auto_now_add=True)
+    #: The requesting address (at most a few requests per address wait at once).
     origin = models.CharField(max_length=100, blank=True)
 
     class Meta:
         ordering = ["-created_at"]
+        indexes = [
+            # Counting the pending requests of one address (`appkeys.open_request`).
+            models.Index(fields=["origin", "state"], name="appkeyrequest_origin_state"),
+        ]
 
     def __str__(self) -> str:
         return f"{self.app} ({self.state})"
@@ -163,3 +176,26 @@ class AuditEntry(models.Model):
 
     def __str__(self) -> str:
         return f"{self.time:%Y-%m-%d %H:%M:%S} {self.user} {self.action}"
+
+
+class LoginFailure(models.Model):
+    """One failed password check, kept for the throttling window (`printhost.logins`).
+
+    In the database, not a cache: printhost configures no shared cache, and every
+    daphne process (and every host behind one database) must see the same counts.
+    """
+
+    time = models.DateTimeField(auto_now_add=True)
+    #: As typed, case-folded: whether such a user exists is never looked up.
+    username = models.CharField(max_length=150)
+    address = models.CharField(max_length=64, blank=True)
+
+    class Meta:
+        indexes = [
+            # Counting one user's and one address's recent failures at each login.
+            models.Index(fields=["username", "time"], name="loginfailure_user_time"),
+            models.Index(fields=["address", "time"], name="loginfailure_addr_time"),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.time:%Y-%m-%d %H:%M:%S} {self.username} from {self.address}"

@@ -117,7 +117,13 @@ CELERY_BROKER_URL = REDIS_URL or "memory://"
 CELERY_TASK_ALWAYS_EAGER = not REDIS_URL
 
 AUTH_PASSWORD_VALIDATORS = [
+    {
+        "NAME": "django.contrib.auth.password_validation."
+        "UserAttributeSimilarityValidator"
+    },
     {"NAME": "django.contrib.auth.password_validation.MinimumLengthValidator"},
+    {"NAME": "django.contrib.auth.password_validation.CommonPasswordValidator"},
+    {"NAME": "django.contrib.auth.password_validation.NumericPasswordValidator"},
 ]
 
 LANGUAGE_CODE = "en-us"
@@ -157,3 +163,20 @@ LOGOUT_REDIRECT_URL = "/accounts/login/"
 #: `host:port` pairs a printer's port may reach as socket:// or rfc2217:// (comma
 #: separated; empty = none). Device paths and links in the data directory need none.
 PRINTHOST_PORT_HOSTS = env_list("PRINTHOST_PORT_HOSTS", [])
+
+# -- Logins and pairing (printhost/logins.py, printhost/appkeys.py) --------------------
+#: Every password check is throttled per user name and per address.
+AUTHENTICATION_BACKENDS = ["printhost.logins.ThrottledModelBackend"]
+#: Failed logins within the window that lock a user name / an address out.
+PRINTHOST_LOGIN_USER_FAILURES = int(env_float("PRINTHOST_LOGIN_USER_FAILURES", 5))
+PRINTHOST_LOGIN_ADDRESS_FAILURES = int(
+    env_float("PRINTHOST_LOGIN_ADDRESS_FAILURES", 20)
+)
+#: The throttling window (s): a lockout lifts this long after its failures.
+PRINTHOST_LOGIN_WINDOW_SECONDS = env_float("PRINTHOST_LOGIN_WINDOW_SECONDS", 900.0)
+#: A Cura pairing request expires this long (s) after it was made.
+PRINTHOST_APPKEY_REQUEST_SECONDS = env_float("PRINTHOST_APPKEY_REQUEST_SECONDS", 600.0)
+#: At most this many pairing requests of one address wait for a decision at once.
+PRINTHOST_APPKEY_PENDING_PER_ADDRESS = int(
+    env_float("PRINTHOST_APPKEY_PENDING_PER_ADDRESS", 3)
+)

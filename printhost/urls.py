@@ -9,12 +9,13 @@ from django.urls import path, re_path
 
 from printhost import pages
 from printhost.api import api
+from printhost.logins import ThrottledLoginView
 
 handler403 = "printhost.pages.denied"
 
 urlpatterns = [
     path("admin/", admin.site.urls),
-    path("accounts/login/", auth_views.LoginView.as_view(), name="login"),
+    path("accounts/login/", ThrottledLoginView.as_view(), name="login"),
     path("accounts/logout/", auth_views.LogoutView.as_view(), name="logout"),
     path("", pages.dashboard, name="dashboard"),
     path("printers/<slug:slug>/", pages.printer_page, name="printer"),

@@ -8,6 +8,10 @@ Every path is also served under `/p/<slug>/`, where Cura's base URL may point.
 
 from __future__ import annotations
 
+from datetime import timedelta
+from typing import Any
+
+from django.conf import settings
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
@@ -22,8 +26,8 @@ from printhost.models import AppKeyRequest, Role
 
 router = Router(tags=["App keys (OctoPrint pairing)"])
 
-#: Where the app sends its user to decide: the admin's list of pending requests.
-DECISION_PAGE = "/admin/printhost/appkeyrequest/?state__exact=pending"
+#: Where the app sends its user to decide: the account page lists pending requests.
+DECISION_PAGE = "/account/#apps-title"
 
 
 @dialect_route(router, "GET", "/plugin/appkeys/probe", auth=None)
@@ -47,7 +51,7 @@ def appkeys_request(request: HttpRequest, slug: str | None = None) -> JsonRespon
         if printer is None:
             raise HttpError(404, f"Unknown printer {slug!r}")
     try:
-        row = appkeys.open_limited_request(
+        row = appkeys.open_request(
             app.strip(),
             user_hint.strip(),
             origin=request.META.get("REMOTE_ADDR", ""),
@@ -85,44 +89,91 @@ def appkeys_poll(
 
 def _may_decide(request: HttpRequest, row: AppKeyRequest) -> None:
     caller = caller_of(request)
-    if caller.key is not None and caller.key.printer_id is not None:
-        raise Forbidden("a key bound to one printer cannot approve app keys")
+    if caller.key is not None:
+        # A key is what a program holds: people decide, in their browser session.
+        raise Forbidden("log in to decide on app key requests (an API key cannot)")
     named = bool(row.user_hint) and row.user_hint == caller.user.get_username()
     operator = bool(caller.printers(Role.OPERATOR))
     if not (named or operator):
         raise Forbidden("only an operator, or the user the app named, may decide")
 
 
+ROLE_NAMES = {"viewer": Role.VIEWER, "operator": Role.OPERATOR, "admin": Role.ADMIN}
+
+
+def _grant_choice(
+    body: dict[str, Any], row: AppKeyRequest
+) -> tuple[Printer | None, int | None]:
+    """The printer the key is bound to and its role, from the decision's body."""
+    printer = row.printer
+    slug = body.get("printer")
+    if slug not in (None, ""):
+        if not isinstance(slug, str):
+            raise HttpError(400, "'printer' must be a printer's slug or null")
+        printer = Printer.objects.filter(slug=slug).first()
+        if printer is None:
+            raise HttpError(404, f"Unknown printer {slug!r}")
+        if row.printer is not None and printer != row.printer:
+            raise HttpError(
+                400,
+                f"the app asked through printer {row.printer.slug!r}: its key can"
+                " only be bound to that printer",
+            )
+    name = body.get("role")
+    if name in (None, ""):
+        return printer, None
+    if name not in ROLE_NAMES:
+        raise HttpError(
+            400, f"'role' must be one of {', '.join(ROLE_NAMES)}, not {name!r}"
+        )
+    return printer, ROLE_NAMES[name]
+
+
 @router.post("/plugin/appkeys/decision/{user_token}")
 def appkeys_decision(request: HttpRequest, user_token: str) -> HttpResponse:
-    """`{"decision": true|false}` from a logged-in user: grant (a key of theirs) or deny."""
-    decision = json_body(request).get("decision")
+    """`{"decision": true|false, "printer": slug, "role": "operator"}` from a user.
+
+    Granting makes a key of the approver's, bound to `printer` (or to the printer
+    the app asked through) with `role` (default: operator, or the approver's own
+    role if lower; never above it: 403).
+    """
+    body = json_body(request)
+    decision = body.get("decision")
     if not isinstance(decision, bool):
         raise HttpError(400, "give 'decision': true or false")
-    row = AppKeyRequest.objects.filter(
-        user_token=user_token,
-        state=AppKeyRequest.State.PENDING,
-        polled_at__gte=appkeys.stale_before(),
-    ).first()
+    row = appkeys.waiting(user_token)
     if row is None:
         raise HttpError(404, "no pending app key request with that token")
     _may_decide(request, row)
+    printer, role = _grant_choice(body, row) if decision else (None, None)
     caller = caller_of(request)
-    row = appkeys.decide(row, caller.user, grant=decision)
+    row = appkeys.decide(row, caller.user, grant=decision, printer=printer, role=role)
     action = "appkey.grant" if decision else "appkey.deny"
-    record(caller, action, detail=f"{row.app} ({row.origin})")
+    record(caller, action, printer=printer, detail=f"{row.app} ({row.origin})")
     if decision and row.api_key is not None:
-        record(caller, "key.create", detail=f"{row.api_key.name} {row.api_key.prefix}")
+        key = row.api_key
+        role_name = Role(key.role).label.split()[0] if key.role else "own roles"
+        record(
+            caller,
+            "key.create",
+            printer=key.printer,
+            detail=f"{key.name} {key.prefix} ({role_name})",
+        )
     return HttpResponse(status=204)
 
 
 @router.get("/api/appkeys/pending")
 def appkeys_pending(request: HttpRequest) -> JsonResponse:
-    """Requests the caller may decide on (operators: all; others: those naming them)."""
+    """Requests the caller may decide on (operators: all; others: those naming them).
+
+    Each says where it came from (`origin`, the requesting address), the printer
+    it asked through (if any) and when it expires.
+    """
     caller = caller_of(request)
     rows = appkeys.pending()
     if not caller.printers(Role.OPERATOR):
         rows = [r for r in rows if r.user_hint == caller.user.get_username()]
+    lifetime = timedelta(seconds=settings.PRINTHOST_APPKEY_REQUEST_SECONDS)
     return envelope(
         [
             {
@@ -130,7 +181,9 @@ def appkeys_pending(request: HttpRequest) -> JsonResponse:
                 "user": r.user_hint,
                 "user_token": r.user_token,
                 "origin": r.origin,
+                "printer": r.printer.slug if r.printer_id else None,
                 "created": r.created_at.isoformat(),
+                "expires": (r.created_at + lifetime).isoformat(),
             }
             for r in rows
         ]

@@ -65,6 +65,24 @@ def caller_of(request: HttpRequest) -> Caller:
     return caller
 
 
+def refuse_acting_get(request: HttpRequest, what: str) -> None:
+    """A call that changes something, made with GET: only an API-key caller may.
+
+    Repetier-Server's API (and the slicers that speak it) act on GET, so a key may;
+    a browser session must POST with a CSRF token, or a link on any page could make
+    a logged-in operator's browser heat the hotend (403 otherwise).
+    """
+    if request.method not in SAFE_METHODS:
+        return
+    caller = caller_of(request)
+    if caller.key is None:
+        raise HttpError(
+            403,
+            f"{what} changes the printer: with a browser session send it as POST "
+            "with a CSRF token (GET acts only for API-key callers)",
+        )
+
+
 def printer_for(request: HttpRequest, slug: str, role: int) -> Printer:
     """The printer *slug*, if the caller holds *role* on it (404 / 401 / 403)."""
     caller = caller_of(request)

@@ -36,6 +36,8 @@ def _key_info(key: ApiKey) -> dict[str, Any]:
         "name": key.name,
         "prefix": key.prefix,
         "printer": key.printer.slug if key.printer_id else None,
+        # The most the key may do (None: whatever its user may).
+        "role": Role(key.role).name.lower() if key.role else None,
         "created": when(key.created_at),
         "last_used": when(key.last_used_at),
         "revoked": when(key.revoked_at),

@@ -15,7 +15,7 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from printers.models import Printer
-from printhost import __version__
+from printhost import __version__, logins
 from printhost.access import NotAuthenticated, caller_from_request
 from printhost.api.common import caller_of
 from printhost.api.dialects import (
@@ -107,6 +107,10 @@ def octoprint_login(request: HttpRequest, slug: str | None = None) -> JsonRespon
     if not body.get("passive") and "user" in body:
         if request.content_type != "application/json":
             raise HttpError(415, "send the login as application/json")
+        try:
+            logins.check(body.get("user"), request)
+        except logins.Throttled as error:
+            raise HttpError(429, str(error)) from None
         user = authenticate(
             request, username=str(body.get("user")), password=str(body.get("pass"))
         )

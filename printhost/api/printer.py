@@ -44,6 +44,7 @@ from printhost.api.common import (
     envelope,
     parse_int,
     printer_for,
+    refuse_acting_get,
     request_params,
 )
 from printhost.api.shapes import printer_entry, printer_state
@@ -98,6 +99,7 @@ async def send(request: HttpRequest, slug: str) -> HttpResponse:
     params = request_params(request)
     command = (params.get("cmd") or "").strip()
     printer = await sync_to_async(printer_for)(request, slug, Role.OPERATOR)
+    await sync_to_async(refuse_acting_get)(request, "send")
     if not command:
         raise HttpError(400, "cmd is required")
     try:
@@ -210,6 +212,7 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         jobs = Job.objects.filter(printer=printer).select_related("printer")
         jobs = jobs.order_by("position", "id")
         return envelope([j.as_dict() for j in jobs])
+    refuse_acting_get(request, f"job a={action}")
     if action == "upload":
         printer = upload_target(request, slug)
         mode = autostart_mode(params.get("autostart"))

@@ -17,7 +17,13 @@ from ninja.errors import HttpError
 from jobs.models import Job, running_job
 from printers.models import Printer, QueuedCommand
 from printhost import __version__
-from printhost.api.common import caller_of, envelope, printer_for, request_params
+from printhost.api.common import (
+    caller_of,
+    envelope,
+    printer_for,
+    refuse_acting_get,
+    request_params,
+)
 from printhost.api.shapes import printer_entry
 from printhost.api.storing import store_upload, upload_target, uploaded_file
 from printhost.clients import PrinterOffline, run_action, run_command
@@ -174,6 +180,7 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
             }
         )
     printer = printer_for(request, slug, Role.OPERATOR)
+    refuse_acting_get(request, f"a={call}")
     if call == "send":
         command = str(data.get("cmd", "")).strip()
         if not command:

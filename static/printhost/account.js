@@ -8,7 +8,7 @@ function keyRow(key) {
   const tr = document.createElement("tr");
   tr.dataset.test = "key";
   tr.dataset.key = key.id;
-  const cells = [key.name, `ph_${key.prefix}…`, key.printer || "all", when(key.created), when(key.last_used) || "never", when(key.revoked) || "—"];
+  const cells = [key.name, `ph_${key.prefix}…`, key.printer || "all", key.role || "mine", when(key.created), when(key.last_used) || "never", when(key.revoked) || "—"];
   for (const text of cells) {
     const td = document.createElement("td");
     td.textContent = text;
@@ -71,16 +71,55 @@ $("keys").addEventListener("click", async (event) => {
   await reloadKeys();
 });
 
+/** A select of the printers the key may be bound to (the new-key form's list). */
+function printerChoice(fixed) {
+  const select = document.createElement("select");
+  select.dataset.test = "appkey-printer";
+  select.setAttribute("aria-label", "Printer the key works for");
+  for (const option of $("key-printer").options) select.append(option.cloneNode(true));
+  if (fixed) {
+    select.value = fixed;
+    if (select.value !== fixed) {
+      const option = document.createElement("option");
+      option.value = option.textContent = fixed;
+      select.append(option);
+      select.value = fixed;
+    }
+    select.disabled = true;
+  }
+  return select;
+}
+
+function roleChoice() {
+  const select = document.createElement("select");
+  select.dataset.test = "appkey-role";
+  select.setAttribute("aria-label", "What the key may do");
+  for (const [value, label] of [["viewer", "viewer (watch)"], ["operator", "operator (print)"], ["admin", "admin"]]) {
+    const option = document.createElement("option");
+    option.value = value;
+    option.textContent = label;
+    select.append(option);
+  }
+  select.value = "operator";
+  return select;
+}
+
 async function reloadApps() {
   const rows = await api("GET", "/api/appkeys/pending");
   if (!rows) return;
+  const list = $("appkeys");
+  // Keep the choices of a request the user is deciding on while the list refreshes.
+  const kept = new Map([...list.querySelectorAll("[data-test=appkey]")].map((li) => [li.dataset.token, li]));
   const items = rows.map((row) => {
+    if (kept.has(row.user_token)) return kept.get(row.user_token);
     const li = document.createElement("li");
     li.dataset.test = "appkey";
     li.dataset.token = row.user_token;
     const text = document.createElement("span");
     text.className = "name";
-    text.textContent = `${row.app} from ${row.origin || "unknown"}${row.user ? ` for ${row.user}` : ""}`;
+    text.dataset.test = "appkey-from";
+    const asker = row.user ? ` for ${row.user}` : "";
+    text.textContent = `${row.app} from ${row.origin || "an unknown address"}${asker}, until ${when(row.expires)}`;
     const approve = document.createElement("button");
     approve.type = "button";
     approve.dataset.test = "appkey-approve";
@@ -91,7 +130,7 @@ async function reloadApps() {
     deny.dataset.test = "appkey-deny";
     deny.className = "danger";
     deny.textContent = "Deny";
-    li.append(text, approve, deny);
+    li.append(text, printerChoice(row.printer), roleChoice(), approve, deny);
     return li;
   });
   if (!items.length) {
@@ -100,16 +139,26 @@ async function reloadApps() {
     li.textContent = "None waiting.";
     items.push(li);
   }
-  $("appkeys").replaceChildren(...items);
+  list.replaceChildren(...items);
 }
 
 $("appkeys").addEventListener("click", async (event) => {
   const b = event.target.closest("button[data-test]");
   if (!b) return;
-  const token = encodeURIComponent(b.closest("li").dataset.token);
+  clearError();
+  const li = b.closest("li");
+  const token = encodeURIComponent(li.dataset.token);
   const decision = b.dataset.test === "appkey-approve";
+  const body = { decision };
+  if (decision) {
+    body.printer = li.querySelector("[data-test=appkey-printer]").value || null;
+    body.role = li.querySelector("[data-test=appkey-role]").value;
+  }
   b.disabled = true;
-  if ((await api("POST", `/plugin/appkeys/decision/${token}`, { decision })) !== undefined) {
+  const done = (await api("POST", `/plugin/appkeys/decision/${token}`, body)) !== undefined;
+  b.disabled = false;
+  if (done) {
+    li.remove();
     await reloadKeys();
   }
   await reloadApps();
