@@ -38,6 +38,8 @@ class Gate:
     upload: bool
     cap: int
     expect_continue: bool
+    #: The Content-Length (None for a chunked body).
+    length: int | None = None
     received: int = 0
     checked_space_at: int = 0
     #: The credential check is running; the body is held to the small cap meanwhile.
@@ -45,7 +47,13 @@ class Gate:
     #: The whole body arrived while the check ran: hand it on once it passes.
     complete: bool = False
     refused: bool = False
+    #: Who holds one of `bodylimits.SLOTS` for this upload ("" once given back).
     uploader: str = ""
+
+    def give_back(self) -> None:
+        if self.uploader:
+            bodylimits.SLOTS.give_back(self.uploader)
+            self.uploader = ""
 
 
 class RawBodyRequest(WebRequest):
@@ -101,6 +109,7 @@ class GatedChannel(http.HTTPChannel):
             cap=bodylimits.body_cap(upload=upload),
             expect_continue=expect[0].lower() == b"100-continue"
             and self._version == b"HTTP/1.1",
+            length=self.length,
         )
         if self.length is not None and self.length > gate.cap:
             self.refuse(request, 413, bodylimits.too_large(gate.cap))
@@ -122,11 +131,6 @@ class GatedChannel(http.HTTPChannel):
                 request, 401, "authentication required: log in or give an API key"
             )
             return
-        if self.length is not None:
-            why = bodylimits.storage_refusal(self.length)
-            if why:
-                self.refuse(request, 507, why)
-                return
         gate.pending = True
         self.transport.pauseProducing()
         check = asyncio.ensure_future(
@@ -150,11 +154,15 @@ class GatedChannel(http.HTTPChannel):
             why = "invalid or revoked API key" if by_key else "session not logged in"
             self.refuse(request, 401, why)
             return
+        why = bodylimits.storage_refusal(gate.length) if gate.length else ""
+        if why:
+            self.refuse(request, 507, why)
+            return
         if not bodylimits.SLOTS.take(who):
             self.refuse(request, 429, bodylimits.SLOTS.busy())
             return
         gate.uploader = who
-        request.notifyFinish().addBoth(lambda _: bodylimits.SLOTS.give_back(who))
+        request.notifyFinish().addBoth(lambda _: gate.give_back())
         gate.pending = False
         self.transport.resumeProducing()
         self._go_on(request)
@@ -171,7 +179,7 @@ class GatedChannel(http.HTTPChannel):
         if gate.complete:
             gate.complete = False
             super().allContentReceived()
-        elif gate.expect_continue and self.length:
+        elif gate.expect_continue and gate.length != 0:
             self._send100Continue()
 
     def allContentReceived(self) -> None:
@@ -188,6 +196,7 @@ class GatedChannel(http.HTTPChannel):
         gate = request.gate
         if gate is not None:
             gate.refused = True
+            gate.give_back()
         with contextlib.suppress(Exception):
             request.content.close()
         body = json.dumps({"error": message, "data": None}).encode()
