@@ -5,9 +5,11 @@ from __future__ import annotations
 import signal
 from typing import TYPE_CHECKING, Any
 
-from django.core.management.base import BaseCommand
+from django.conf import settings
+from django.core.management.base import BaseCommand, CommandError
 
 from printers.supervisor import Supervisor
+from printhost.startup import secret_key_refusal
 
 if TYPE_CHECKING:
     from argparse import ArgumentParser
@@ -25,6 +27,14 @@ class Command(BaseCommand):
         parser.add_argument("--no-web", action="store_true", help="workers only")
 
     def handle(self, *args: Any, **options: Any) -> None:
+        if not options["no_web"]:
+            refusal = secret_key_refusal(
+                secret_key=settings.SECRET_KEY,
+                debug=settings.DEBUG,
+                hosts=[options["bind"]],
+            )
+            if refusal:
+                raise CommandError(refusal)
         self.supervisor = Supervisor(
             bind=options["bind"], port=options["port"], serve_web=not options["no_web"]
         )
