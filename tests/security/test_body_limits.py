@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import select
 import socket
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import httpx
 import pytest
 
 from tests.conftest import wait_for
@@ -117,7 +119,9 @@ def exchange(
     is left open (appended to it) instead of closed.
     """
     answer = Answer()
-    lines = [*head, "Host: 127.0.0.1"] + (["Expect: 100-continue"] if expect else [])
+    lines = [*head, f"Host: 127.0.0.1:{port}"] + (
+        ["Expect: 100-continue"] if expect else []
+    )
     sock = socket.create_connection(("127.0.0.1", port), timeout=10)
     sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
     sock.setblocking(False)
@@ -427,3 +431,42 @@ def test_an_upload_bigger_than_the_free_space_gets_507(tmp_path: Path) -> None:
     assert answer.error.startswith("not enough space for this upload: 1000 bytes")
     assert answer.sent == 0
     assert anonymous.status == 401
+
+
+def test_a_browser_session_gets_100_continue_and_its_upload_is_stored(
+    served: Served,
+) -> None:
+    with httpx.Client(base_url=served.host.url, timeout=30) as browser:
+        form = browser.get("/accounts/login/")
+        token = re.search(r'name="csrfmiddlewaretoken" value="([^"]+)"', form.text)
+        assert token is not None
+        logged_in = browser.post(
+            "/accounts/login/",
+            data={
+                "username": "op",
+                "password": "op",
+                "csrfmiddlewaretoken": token.group(1),
+            },
+        )
+        assert logged_in.status_code == 302, logged_in.text
+        session = browser.cookies["sessionid"]
+        csrf = browser.cookies["csrftoken"]
+    content = b"G28\n; from a browser\n" * 100
+    kind, body = multipart("browser.gcode", content)
+    answer = exchange(
+        served.host.port,
+        [
+            "POST /api/files/local HTTP/1.1",
+            f"Cookie: sessionid={session}; csrftoken={csrf}",
+            f"X-CSRFToken: {csrf}",
+            f"Origin: {served.host.url}",
+            f"Referer: {served.host.url}/",
+            f"Content-Type: {kind}",
+            f"Content-Length: {len(body)}",
+        ],
+        [body],
+        expect=True,
+    )
+    assert answer.interim == [100]
+    assert answer.status == 201, answer
+    assert content in job_files(served).values()
