@@ -148,8 +148,8 @@ class GatedChannel(http.HTTPChannel):
         gate = request.gate
         if gate is None or gate.refused or self.transport is None:
             return
-        if request not in self.requests:
-            return
+        if request not in self.requests or request.channel is None:
+            return  # the client left while its credentials were checked
         if who is None:
             why = "invalid or revoked API key" if by_key else "session not logged in"
             self.refuse(request, 401, why)
@@ -170,8 +170,9 @@ class GatedChannel(http.HTTPChannel):
     def _check_failed(self, request: RawBodyRequest, failure: Any) -> None:
         logger.error("upload credential check failed: %s", failure.getErrorMessage())
         gate = request.gate
-        if gate is not None and not gate.refused and self.transport is not None:
-            self.refuse(request, 503, "could not check the credentials; try again")
+        if gate is None or gate.refused or request.channel is None:
+            return
+        self.refuse(request, 503, "could not check the credentials; try again")
 
     def _go_on(self, request: RawBodyRequest) -> None:
         gate = request.gate
