@@ -19,6 +19,7 @@ import httpx
 import pytest
 
 from printhost import startup
+from printhost.redact import redact_target
 from tests.conftest import ROOT, wait_for
 from tests.hosts import Host, free_port
 
@@ -163,3 +164,20 @@ def test_keys_in_query_strings_are_redacted_in_the_access_log(tmp_path: Path) ->
     assert '"GET /api/version?x=1&apikey=[redacted]" 200' in log
     assert '"GET /api/version?x=1&token=[redacted]" 200' in log
     assert "refused POST /api/files/local?apikey=[redacted]" in log
+
+
+@pytest.mark.parametrize(
+    ("target", "logged"),
+    [
+        ("/api/version?apikey=ph_abc", "/api/version?apikey=[redacted]"),
+        ("/ws/printers/?token=ph_abc&last=4", "/ws/printers/?token=[redacted]&last=4"),
+        (
+            "/x?a=1&API_KEY=s3cret&password=hunter2",
+            "/x?a=1&API_KEY=[redacted]&password=[redacted]",
+        ),
+        ("/printer/job/p1?a=list", "/printer/job/p1?a=list"),
+        ("/printer/job/p1?monkey=1", "/printer/job/p1?monkey=1"),
+    ],
+)
+def test_credentials_in_a_logged_url_are_redacted(target: str, logged: str) -> None:
+    assert redact_target(target) == logged
