@@ -80,7 +80,7 @@ class RawBodyRequest(WebRequest):
             else gate.cap
         )
         if gate.received > cap:
-            self.channel.refuse(self, 413, bodylimits.too_large(gate.cap))
+            self.channel.refuse(self, 413, bodylimits.too_large(upload=gate.upload))
             return
         if gate.upload and gate.received - gate.checked_space_at >= SPACE_CHECK_BYTES:
             gate.checked_space_at = gate.received
@@ -112,7 +112,7 @@ class GatedChannel(http.HTTPChannel):
             length=self.length,
         )
         if self.length is not None and self.length > gate.cap:
-            self.refuse(request, 413, bodylimits.too_large(gate.cap))
+            self.refuse(request, 413, bodylimits.too_large(upload=gate.upload))
             return
         if not upload:
             self._go_on(request)

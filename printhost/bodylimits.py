@@ -61,8 +61,11 @@ def body_cap(*, upload: bool) -> int:
     return int(settings.PRINTHOST_MAX_BODY_BYTES)
 
 
-def too_large(cap: int) -> str:
-    return f"request body larger than {cap} bytes"
+def too_large(*, upload: bool) -> str:
+    """The 413 message: the cap, and the setting that sets it."""
+    setting = "PRINTHOST_MAX_JOB_BYTES" if upload else "PRINTHOST_MAX_BODY_BYTES"
+    what = "job file" if upload else "request body (not an upload)"
+    return f"{what} larger than {body_cap(upload=upload)} bytes ({setting})"
 
 
 def free_bytes(folder: Path) -> int:

@@ -235,7 +235,10 @@ def test_a_400_mb_anonymous_post_to_a_route_without_uploads_is_refused_unread(
         zeros(BIG),
     )
     assert answer.status == 413, answer
-    assert answer.error == f"request body larger than {SMALL_CAP} bytes"
+    assert answer.error == (
+        f"request body (not an upload) larger than {SMALL_CAP} bytes "
+        "(PRINTHOST_MAX_BODY_BYTES)"
+    )
     assert answer.sent < SLACK
     wait_for(lambda: spool_is_empty(served), 30, "no body kept in the temp folder")
 
@@ -353,7 +356,9 @@ def test_an_upload_over_the_job_cap_is_refused_while_it_streams_and_nothing_is_k
         zeros(JOB_CAP + 1),
     )
     assert declared.status == 413, declared
-    assert declared.error == f"request body larger than {JOB_CAP} bytes"
+    assert declared.error == (
+        f"job file larger than {JOB_CAP} bytes (PRINTHOST_MAX_JOB_BYTES)"
+    )
     assert declared.sent < SLACK
 
     streamed = exchange(
