@@ -154,7 +154,7 @@ class GatedChannel(http.HTTPChannel):
             why = "invalid or revoked API key" if by_key else "session not logged in"
             self.refuse(request, 401, why)
             return
-        why = bodylimits.storage_refusal(gate.length) if gate.length else ""
+        why = bodylimits.storage_refusal(gate.length or 0)
         if why:
             self.refuse(request, 507, why)
             return

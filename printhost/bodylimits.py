@@ -79,6 +79,11 @@ def storage_refusal(size: int) -> str:
     """Why an upload of *size* bytes would not fit in the job storage ("" if it fits)."""
     spare = int(settings.PRINTHOST_UPLOAD_SPARE_BYTES)
     free = free_bytes(Path(settings.JOB_STORAGE_DIR))
+    if size + spare > free and not size:
+        return (
+            f"not enough space for uploads: {spare} bytes spare wanted, {free} free "
+            "in the job storage"
+        )
     if size + spare > free:
         return (
             f"not enough space for this upload: {size} bytes plus {spare} spare "

@@ -426,6 +426,16 @@ def test_an_upload_bigger_than_the_free_space_gets_507(tmp_path: Path) -> None:
             zeros(1000),
             expect=True,
         )
+        streamed = exchange(
+            host.port,
+            [
+                "POST /server/files/upload HTTP/1.1",
+                f"X-Api-Key: {key}",
+                "Transfer-Encoding: chunked",
+            ],
+            chunked(BIG),
+            expect=True,
+        )
         anonymous = exchange(
             host.port,
             ["POST /api/files/local HTTP/1.1", "Content-Length: 1000"],
@@ -435,6 +445,9 @@ def test_an_upload_bigger_than_the_free_space_gets_507(tmp_path: Path) -> None:
     assert answer.status == 507, answer
     assert answer.error.startswith("not enough space for this upload: 1000 bytes")
     assert answer.sent == 0
+    assert streamed.status == 507, streamed
+    assert streamed.error.startswith("not enough space for uploads:")
+    assert streamed.sent == 0
     assert anonymous.status == 401
 
 
