@@ -488,3 +488,41 @@ def test_a_browser_session_gets_100_continue_and_its_upload_is_stored(
     assert answer.interim == [100]
     assert answer.status == 201, answer
     assert content in job_files(served).values()
+
+
+def test_a_refused_patch_leaves_its_resumable_upload_as_it_was(served: Served) -> None:
+    with httpx.Client(
+        base_url=served.host.url, headers={"X-Api-Key": served.key}, timeout=30
+    ) as client:
+        opened = client.post(
+            "/printer/upload/p1", params={"name": "resumed.gcode", "size": 4000}
+        )
+        assert opened.status_code == 201, opened.text
+        where = opened.headers["Location"]
+        first = client.patch(
+            where, content=b"G28\n" * 500, headers={"Upload-Offset": "0"}
+        )
+        assert first.headers["Upload-Offset"] == "2000", first.text
+        for head, body in (
+            (f"Content-Length: {JOB_CAP + 1}", zeros(JOB_CAP + 1)),
+            ("Transfer-Encoding: chunked", chunked(BIG)),
+        ):
+            refused = exchange(
+                served.host.port,
+                [
+                    f"PATCH {where} HTTP/1.1",
+                    f"X-Api-Key: {served.key}",
+                    "Upload-Offset: 2000",
+                    head,
+                ],
+                body,
+            )
+            assert refused.status == 413, refused
+        assert client.head(where).headers["Upload-Offset"] == "2000"
+        last = client.patch(
+            where, content=b"G1 X1\n" * 333 + b"\n\n", headers={"Upload-Offset": "2000"}
+        )
+        assert last.status_code == 200, last.text
+        assert last.json()["data"]["complete"] is True
+    wait_for(lambda: spool_is_empty(served), 30, "no body kept in the temp folder")
+    assert b"G28\n" * 500 + b"G1 X1\n" * 333 + b"\n\n" in job_files(served).values()
