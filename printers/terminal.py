@@ -13,6 +13,15 @@ Pronterface, another host) is a client. Protocol, one line at a time:
    and permissions as HTTP and websockets (operator role; a viewer gets `error: ...`);
    an `[ESPxxx]` command's reply goes to this client only.
 
+Limits: at most `PRINTHOST_TERMINAL_MAX_CLIENTS` connections per printer port and
+`PRINTHOST_TERMINAL_MAX_PER_ADDRESS` per client address (an excess connection gets
+one `error:` line and is closed); a client that gives no key line within
+`PRINTHOST_TERMINAL_LOGIN_SECONDS` is closed; a line over MAX_LINE bytes is refused
+with an `error:` line and discarded up to its newline without being held (an
+endless line never grows memory); a command longer than the printer's firmware takes
+is refused. Printer output reaches clients with its control characters removed (tabs
+kept), so a printer's text cannot drive a user's terminal.
+
 The feed is the same as the websockets': the printer's channel-layer group, fed by
 the worker (Redis) or by this process's relay (no Redis), gaps filled from the log.
 """
@@ -22,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 from typing import Any
 
 from channels.db import database_sync_to_async
@@ -30,6 +40,7 @@ from django.conf import settings
 
 from printers import broadcast, live
 from printers.consumers import esp_reply
+from printers.driver import LinkConfig
 from printers.models import Printer
 from printhost.access import Caller, caller_from_key
 from printhost.clients import run_command
@@ -37,10 +48,59 @@ from printhost.models import ApiKey, Role
 
 logger = logging.getLogger("printhost.terminal")
 
-#: The key line must arrive within this many seconds.
-LOGIN_SECONDS = 30.0
-#: Longest line a client may send (bytes); longer ones end the session.
+#: Longest line a client may send (bytes); longer ones are refused and discarded.
 MAX_LINE = 4096
+#: How much is read from a client at a time (bytes).
+READ_BYTES = 65536
+#: Control characters never written to a client: C0 but tab, DEL, C1.
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f-\x9f]")
+
+
+def printable(text: str) -> str:
+    """*text* without control characters (ESC sequences lose their ESC), tabs kept."""
+    return _CONTROL.sub("", text)
+
+
+class TooLong:
+    """What `LineReader.next` returns for a line over its limit."""
+
+
+TOO_LONG = TooLong()
+
+
+class LineReader:
+    """A client's lines, never holding more than *limit* bytes of one.
+
+    A line over the limit is discarded up to its newline (what arrives of it is
+    dropped as it comes) and reported once as TOO_LONG.
+    """
+
+    def __init__(self, reader: asyncio.StreamReader, limit: int = MAX_LINE) -> None:
+        self.reader = reader
+        self.limit = limit
+        self.buffer = bytearray()
+        self.discarding = False
+
+    async def next(self) -> bytes | TooLong | None:
+        """The next line (with its newline), TOO_LONG, or None at end of input."""
+        while True:
+            end = self.buffer.find(b"\n")
+            if end >= 0:
+                line = bytes(self.buffer[: end + 1])
+                del self.buffer[: end + 1]
+                if self.discarding or len(line) > self.limit + 1:
+                    self.discarding = False
+                    return TOO_LONG
+                return line
+            if len(self.buffer) > self.limit:
+                self.buffer.clear()
+                self.discarding = True
+            data = await self.reader.read(READ_BYTES)
+            if not data:
+                return None
+            self.buffer += data
+
+
 #: How often the listeners are matched with the printer table (s).
 RESCAN_SECONDS = 5.0
 
@@ -60,8 +120,9 @@ class Session:
         self.caller: Caller | None = None
         self.cursor = live.LineCursor(0)
         self.tasks: set[asyncio.Task[None]] = set()
-        peer = writer.get_extra_info("peername")
-        self.address = str(peer[0]) if peer else ""
+        self.lines = LineReader(reader)
+        self.address = peer_address(writer)
+        self.command_limit = LinkConfig.from_printer(printer).command_limit
 
     async def run(self) -> None:
         try:
@@ -83,9 +144,16 @@ class Session:
     async def login(self) -> bool:
         """Read the key line; say why and refuse when it does not give a viewer."""
         try:
-            raw = await asyncio.wait_for(self.reader.readline(), LOGIN_SECONDS)
+            raw = await asyncio.wait_for(
+                self.lines.next(), settings.PRINTHOST_TERMINAL_LOGIN_SECONDS
+            )
         except TimeoutError:
             await self.say("error: no API key given in time")
+            return False
+        if raw is None:
+            return False
+        if isinstance(raw, TooLong):
+            await self.say(f"error: key line longer than {MAX_LINE} bytes")
             return False
         key = raw.decode("utf-8", "replace").strip()
         find = database_sync_to_async(caller_from_key)
@@ -178,20 +246,27 @@ class Session:
 
     async def write_lines(self, lines: list[live.Line]) -> None:
         if lines:
-            self.writer.write("".join(f"{line['text']}\n" for line in lines).encode())
+            text = "".join(f"{printable(line['text'])}\n" for line in lines)
+            self.writer.write(text.encode())
             await self.writer.drain()
 
     async def commands(self) -> None:
         while True:
-            raw = await self.reader.readline()
-            if not raw:
+            raw = await self.lines.next()
+            if raw is None:
                 return
-            if len(raw) > MAX_LINE:
-                await self.say(f"error: line longer than {MAX_LINE} bytes")
-                return
+            if isinstance(raw, TooLong):
+                await self.say(f"error: line longer than {MAX_LINE} bytes, discarded")
+                continue
             text = raw.decode("utf-8", "replace").strip()
-            if text:
-                await self.command(text)
+            if text.startswith("[ESP") or len(text) <= self.command_limit:
+                if text:
+                    await self.command(text)
+                continue
+            await self.say(
+                f"error: command longer than {self.command_limit} characters, "
+                "the most this printer's firmware takes; not sent"
+            )
 
     async def command(self, text: str) -> None:
         """One line from the client: `filter <bits>`, or a command for the printer."""
@@ -221,7 +296,7 @@ class Session:
         await self.say(await esp_reply(row_id))
 
     async def say(self, text: str) -> None:
-        self.writer.write(f"{text}\n".encode())
+        self.writer.write(f"{printable(text)}\n".encode())
         await self.writer.drain()
 
 
@@ -231,6 +306,9 @@ class TerminalServer:
     def __init__(self, bind: str | None = None) -> None:
         self.bind = bind or settings.PRINTHOST_TERMINAL_BIND
         self.servers: dict[str, tuple[int, asyncio.Server]] = {}
+        #: Connections now open, per printer slug and per client address.
+        self.per_printer: dict[str, int] = {}
+        self.per_address: dict[str, int] = {}
 
     async def run(self, stop: asyncio.Event) -> None:
         try:
@@ -253,7 +331,7 @@ class TerminalServer:
                 continue
             try:
                 server = await asyncio.start_server(
-                    lambda r, w, p=printer: Session(p, r, w).run(),
+                    lambda r, w, p=printer: self.serve_client(p, r, w),
                     self.bind,
                     port,
                     limit=MAX_LINE * 2,
@@ -266,11 +344,52 @@ class TerminalServer:
             logger.info("terminal of %s on %s:%s", slug, self.bind, port)
             self.servers[slug] = (port, server)
 
+    async def serve_client(
+        self,
+        printer: Printer,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+    ) -> None:
+        """Run a session for a new connection, or refuse it over a cap, saying why."""
+        slug, address = printer.slug, peer_address(writer)
+        refusal = ""
+        most = settings.PRINTHOST_TERMINAL_MAX_CLIENTS
+        per_address = settings.PRINTHOST_TERMINAL_MAX_PER_ADDRESS
+        if self.per_printer.get(slug, 0) >= most:
+            refusal = f"too many terminal clients on printer {slug!r} (at most {most})"
+        elif self.per_address.get(address, 0) >= per_address:
+            refusal = (
+                f"too many terminal connections from {address} (at most {per_address})"
+            )
+        if refusal:
+            logger.warning("terminal of %s refused %s: %s", slug, address, refusal)
+            with contextlib.suppress(Exception):
+                writer.write(f"error: {refusal}; try again later\n".encode())
+                await asyncio.wait_for(writer.drain(), 5)
+            writer.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(writer.wait_closed(), 5)
+            return
+        self.per_printer[slug] = self.per_printer.get(slug, 0) + 1
+        self.per_address[address] = self.per_address.get(address, 0) + 1
+        try:
+            await Session(printer, reader, writer).run()
+        finally:
+            for counts, name in ((self.per_printer, slug), (self.per_address, address)):
+                counts[name] -= 1
+                if counts[name] <= 0:
+                    del counts[name]
+
     async def close(self, slug: str) -> None:
         _, server = self.servers.pop(slug)
         server.close()
         with contextlib.suppress(Exception):
             await asyncio.wait_for(server.wait_closed(), 2)
+
+
+def peer_address(writer: asyncio.StreamWriter) -> str:
+    peer = writer.get_extra_info("peername")
+    return str(peer[0]) if peer else ""
 
 
 def _wanted() -> dict[str, tuple[int, Printer]]:

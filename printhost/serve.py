@@ -18,19 +18,42 @@ Two things make a plain daphne hold an upload in memory, many times over:
 Twisted itself keeps a big body in a temporary file while it arrives, and Django
 spools it to another, so an upload's size never shows in the server's memory.
 
+3. Nothing is read or stored for a body that will be refused: `GatedChannel` asks
+   `printhost.bodylimits` once a request's headers are in. A body over its cap gets
+   413 (at once from Content-Length, else as the cap is crossed); an upload without
+   a valid API key or session gets 401 before its body is read (its
+   `Expect: 100-continue` is answered only after that check, where Twisted would
+   answer it at once), one that does not fit the job storage 507, one past the
+   user's uploads in flight 429. A refused request's body file is closed (deleted),
+   the connection stops reading and is closed a few seconds later (`printhost.bodygate`).
+
+Access log lines have credentials in query strings redacted (`printhost.redact`).
+These patches lean on Twisted's and daphne's internals: `INTERNALS` lists them, and
+the server refuses to start when one is missing (Twisted is pinned in requirements).
+
 Run as `python -m printhost.serve` with daphne's own arguments (runhost does).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
+import sys
 import tempfile
+from importlib.metadata import version
 from typing import IO, Any
 
 import daphne.server
 from daphne.cli import CommandLineInterface
 from daphne.http_protocol import HTTPFactory, WebRequest
 from daphne.server import Server
+from twisted.web import http
+
+from printhost import startup
+from printhost.bodygate import GatedChannel, RawBodyRequest
+from printhost.redact import redact_target
+
+logger = logging.getLogger("printhost.serve")
 
 #: Body bytes an HTTP request may hold in memory while the application reads it.
 HELD_BYTES = 1024 * 1024
@@ -78,16 +101,11 @@ class SpooledBodyQueue(asyncio.Queue):
         return item
 
 
-class RawBodyRequest(WebRequest):
-    """daphne's request, without Twisted's in-memory parse of form bodies."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._parsePOSTFormSubmission = False
-
-
 class RawBodyHTTPFactory(HTTPFactory):
-    """daphne's HTTP factory, building `RawBodyRequest`s."""
+    """daphne's HTTP factory, building `GatedChannel`s of `RawBodyRequest`s."""
+
+    def protocol(self) -> Any:
+        return http._GenericHTTPChannelProtocol(GatedChannel())
 
     def buildProtocol(self, addr: Any) -> Any:
         protocol = super().buildProtocol(addr)
@@ -96,8 +114,35 @@ class RawBodyHTTPFactory(HTTPFactory):
         return protocol
 
 
+class RedactedAccessLog:
+    """daphne's access log, with credentials in query strings redacted."""
+
+    def __init__(self, log: Any) -> None:
+        self.log = log
+
+    def __call__(self, protocol: str, action: str, details: dict[str, Any]) -> None:
+        if isinstance(details.get("path"), str):
+            details = {**details, "path": redact_target(details["path"])}
+        self.log(protocol, action, details)
+
+
 class SpoolingServer(Server):
-    """daphne's server; HTTP requests get a `SpooledBodyQueue`."""
+    """daphne's server; HTTP requests get a `SpooledBodyQueue`, the access log is
+    redacted, and the development secret key may not serve beyond loopback."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        from django.conf import settings
+
+        endpoints = kwargs.get("endpoints") or []
+        refusal = startup.secret_key_refusal(
+            secret_key=settings.SECRET_KEY, debug=settings.DEBUG, hosts=(),
+            endpoints=endpoints,
+        )  # fmt: skip
+        if refusal:
+            sys.exit(f"printhost: {refusal}")
+        if kwargs.get("action_logger") is not None:
+            kwargs["action_logger"] = RedactedAccessLog(kwargs["action_logger"])
+        super().__init__(*args, **kwargs)
 
     def create_application(self, protocol: Any, scope: dict[str, Any]) -> Any:
         queue = super().create_application(protocol, scope)
@@ -111,7 +156,49 @@ class SpoolingCommandLine(CommandLineInterface):
     server_class = SpoolingServer
 
 
+#: Every attribute of Twisted, daphne and asyncio this module overrides or reads.
+INTERNALS = (
+    startup.Internal(daphne.server, "HTTPFactory"),
+    startup.Internal(Server, "create_application"),
+    startup.Internal(Server, "__init__"),
+    startup.Internal(CommandLineInterface, "server_class"),
+    startup.Internal(CommandLineInterface, "entrypoint"),
+    startup.Internal(HTTPFactory, "buildProtocol"),
+    startup.Internal(HTTPFactory, "protocol"),
+    startup.Internal(WebRequest, "handleContentChunk"),
+    startup.Internal(WebRequest, "gotLength"),
+    startup.Internal(WebRequest, "notifyFinish"),
+    startup.Internal(WebRequest, "parseCookies"),
+    startup.Internal(http.Request, "received_cookies", set_in="__init__"),
+    startup.Internal(http.Request, "_parsePOSTFormSubmission", set_in="__init__"),
+    startup.Internal(http, "_GenericHTTPChannelProtocol"),
+    startup.Internal(http.HTTPChannel, "allHeadersReceived"),
+    startup.Internal(http.HTTPChannel, "allContentReceived"),
+    startup.Internal(http.HTTPChannel, "checkPersistence"),
+    startup.Internal(http.HTTPChannel, "_send100Continue"),
+    startup.Internal(http.HTTPChannel, "requests", set_in="__init__"),
+    startup.Internal(http.HTTPChannel, "length", set_in="_maybeChooseTransferDecoder"),
+    startup.Internal(http.HTTPChannel, "_command", set_in="lineReceived"),
+    startup.Internal(http.HTTPChannel, "_path", set_in="lineReceived"),
+    startup.Internal(http.HTTPChannel, "_version", set_in="lineReceived"),
+    startup.Internal(asyncio.Queue, "_put"),
+    startup.Internal(asyncio.Queue, "_get"),
+)
+
+
+def versions() -> str:
+    return f"Twisted {version('twisted')}, daphne {version('daphne')}"
+
+
+def check_internals(internals: tuple[startup.Internal, ...] = INTERNALS) -> None:
+    """Exit with a clear message when one of *internals* is gone."""
+    refusal = startup.internals_refusal(internals, versions())
+    if refusal:
+        sys.exit(f"printhost: {refusal}")
+
+
 def main() -> None:
+    check_internals()
     # daphne's Server.run() builds its HTTP factory by this module-level name.
     daphne.server.HTTPFactory = RawBodyHTTPFactory
     SpoolingCommandLine.entrypoint()

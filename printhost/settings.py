@@ -180,3 +180,21 @@ PRINTHOST_APPKEY_REQUEST_SECONDS = env_float("PRINTHOST_APPKEY_REQUEST_SECONDS",
 PRINTHOST_APPKEY_PENDING_PER_ADDRESS = int(
     env_float("PRINTHOST_APPKEY_PENDING_PER_ADDRESS", 3)
 )
+
+# Request bodies before authentication, and the raw TCP terminal's limits
+# (printhost/bodylimits.py, printhost/bodygate.py, printers/terminal.py).
+#: Largest body of a request that is not an upload (forms, JSON), in bytes.
+PRINTHOST_MAX_BODY_BYTES = int(env_float("PRINTHOST_MAX_BODY_BYTES", 1024**2))
+#: Uploads one user may have in flight at once (more get 429).
+PRINTHOST_UPLOADS_PER_CALLER = int(env_float("PRINTHOST_UPLOADS_PER_CALLER", 2))
+#: Free space (bytes) the job storage must keep beyond an upload's size (else 507).
+PRINTHOST_UPLOAD_SPARE_BYTES = int(
+    env_float("PRINTHOST_UPLOAD_SPARE_BYTES", 64 * 1024**2)
+)
+#: Terminal clients at once on one printer's port, and from one address.
+PRINTHOST_TERMINAL_MAX_CLIENTS = int(env_float("PRINTHOST_TERMINAL_MAX_CLIENTS", 8))
+PRINTHOST_TERMINAL_MAX_PER_ADDRESS = int(
+    env_float("PRINTHOST_TERMINAL_MAX_PER_ADDRESS", 4)
+)
+#: Seconds a terminal client has to send its key line before it is closed.
+PRINTHOST_TERMINAL_LOGIN_SECONDS = env_float("PRINTHOST_TERMINAL_LOGIN_SECONDS", 30.0)

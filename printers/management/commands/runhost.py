@@ -7,9 +7,10 @@ import signal
 from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
-from django.core.management.base import BaseCommand
+from django.core.management.base import BaseCommand, CommandError
 
 from printers.supervisor import Supervisor
+from printhost.startup import secret_key_refusal
 
 if TYPE_CHECKING:
     from argparse import ArgumentParser
@@ -29,6 +30,14 @@ class Command(BaseCommand):
     def handle(self, *args: Any, **options: Any) -> None:
         # Children (simulators: their --record check) see the same data directory.
         os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
+        if not options["no_web"]:
+            refusal = secret_key_refusal(
+                secret_key=settings.SECRET_KEY,
+                debug=settings.DEBUG,
+                hosts=[options["bind"]],
+            )
+            if refusal:
+                raise CommandError(refusal)
         self.supervisor = Supervisor(
             bind=options["bind"], port=options["port"], serve_web=not options["no_web"]
         )
