@@ -213,6 +213,11 @@ class GrblProtocol:
         """Lines accepted by send() and not yet answered."""
         return len(self._outbox) + len(self._waiting)
 
+    @property
+    def bytes_in_flight(self) -> int:
+        """Bytes of lines written and not yet answered: what fills GRBL's RX buffer."""
+        return sum(line.size for line in self._waiting)
+
     # -- receiving -----------------------------------------------------------------
 
     def receive_data(self, data: bytes, now: float) -> None:
