@@ -151,6 +151,7 @@ def test_an_alarm_mid_job_stops_it_and_shows_until_unlocked(
         assert sim.control("halt") == "ok"
         wait_for(lambda: job_state(job).state == "failed", 10, "the job to stop",
                  step=worker.tick)  # fmt: skip
+        assert job_state(job).message.startswith("GRBL alarm: ALARM:1 hard limit")
         ran = len(job_lines(sim))
         for _ in range(30):  # the worker carries on, the job does not
             worker.tick()
