@@ -115,6 +115,8 @@ class GrblProtocol:
         self._settled = False
         #: An EEPROM write waits for that report: poll for it.
         self._want_settled = False
+        #: When the oldest `?` still without any report went out.
+        self._unreported_since: float | None = None
         self._events: deque[Event] = deque()
         self._inbox = bytearray()
         self._outbox: deque[Line] = deque()  # accepted by send(), not yet written
@@ -192,6 +194,8 @@ class GrblProtocol:
         if self._poll_due():
             out += b"?"
             self._last_poll_at = self._poll_pending_since = self._now
+            if self._unreported_since is None:
+                self._unreported_since = self._now
         while self._outbox:
             line = self._outbox.popleft()
             out += line.text.encode("ascii") + b"\n"
@@ -206,6 +210,7 @@ class GrblProtocol:
         self._outbox.clear()
         self._waiting.clear()
         self._want_settled = False
+        self._unreported_since = None
         self._stall_reported = False
 
     @property
@@ -246,6 +251,8 @@ class GrblProtocol:
             deadlines.append(self._reset_sent_at + self.ack_timeout)
         elif self.in_flight and not self._stall_reported:
             deadlines.append(self._ack_deadline())
+        elif self._report_deadline() is not None and not self._stall_reported:
+            deadlines.append(self._report_deadline())
         return min((d for d in deadlines if d is not None), default=None)
 
     def handle_timeout(self, now: float) -> None:
@@ -265,6 +272,25 @@ class GrblProtocol:
         if self.in_flight and not self._stall_reported and now >= self._ack_deadline():
             self._stall_reported = True
             self._events.append(LinkFailed(self._stall_message()))
+        report_deadline = self._report_deadline()
+        if report_deadline is not None and not self._stall_reported:
+            self._report_missing(now, report_deadline)
+
+    def _report_missing(self, now: float, deadline: float) -> None:
+        if now >= deadline:
+            self._stall_reported = True
+            self._events.append(
+                LinkFailed(
+                    f"GRBL answered no status poll within {self.ack_timeout:g} s "
+                    "while an EEPROM write waited for it to report Idle"
+                )
+            )
+
+    def _report_deadline(self) -> float | None:
+        """While an EEPROM write waits for a report: when missing reports fail the link."""
+        if not self._want_settled or self._unreported_since is None:
+            return None
+        return self._unreported_since + self.ack_timeout
 
     # -- internals -----------------------------------------------------------------
 
@@ -341,7 +367,8 @@ class GrblProtocol:
 
     def _status(self, report: StatusReport, now: float) -> None:
         self.last_status = report
-        self._poll_pending_since = None
+        self._poll_pending_since = self._unreported_since = None
+        self._stall_reported = self._stall_reported and bool(self.in_flight)
         state = report.state.partition(":")[0]
         self.check_mode = state == "Check"
         if not self.in_flight:

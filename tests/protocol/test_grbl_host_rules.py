@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from printers.protocol.errors import LocalProtocolError
-from printers.protocol.events import Ack, FirmwareInfo, Received, Sent
+from printers.protocol.events import Ack, FirmwareInfo, LinkFailed, Received, Sent
 from printers.protocol.grbl import GrblProtocol
 from printers.protocol.grbl_events import BuildOptions, CheckMode
 from tests.protocol.test_grbl import EEPROM_WRITES, drain, fill, make
@@ -144,3 +144,32 @@ def test_jog_cancel_is_uncounted_and_goes_ahead_of_queued_lines() -> None:
     assert protocol.in_flight == count
     protocol.receive_data(b"ok\r\n", 0.2)
     assert Ack(0) in drain(protocol)
+
+
+def test_a_grbl_that_never_reports_fails_the_link_while_a_write_waits() -> None:
+    protocol = make(ack_timeout=5.0)
+    protocol.receive_data(b"", 0.0)
+    assert not protocol.can_send("$100=250")
+    assert protocol.data_to_send() == b"?"
+    now = 0.0
+    failures = []
+    while now < 12.0:
+        now = max(now + 0.05, protocol.next_deadline() or now)
+        protocol.handle_timeout(now)
+        protocol.data_to_send()  # asks again now and then
+        failures += [e for e in drain(protocol) if isinstance(e, LinkFailed)]
+    assert len(failures) == 1
+    assert "no status poll within 5 s" in failures[0].message
+
+
+def test_reports_keep_a_waiting_write_from_failing_the_link() -> None:
+    protocol = make(ack_timeout=5.0)
+    protocol.receive_data(b"", 0.0)
+    assert not protocol.can_send("$100=250")
+    for step in range(200):  # 20 s of Hold: the write waits, the link is fine
+        now = step * 0.1
+        protocol.handle_timeout(now)
+        if protocol.data_to_send() == b"?":
+            protocol.receive_data(b"<Hold:0|MPos:0,0,0>\r\n", now)
+        assert not any(isinstance(e, LinkFailed) for e in drain(protocol))
+    assert not protocol.can_send("$100=250")
