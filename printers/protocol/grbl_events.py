@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 from printers.protocol.events import Event
 
-__all__ = ["BuildOptions", "CheckMode", "ProgramEnd", "Unlocked"]
+__all__ = ["BuildOptions", "CheckMode", "Locked", "ProgramEnd", "Unlocked"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,6 +34,13 @@ class CheckMode(Event):
 @dataclass(frozen=True, slots=True)
 class Unlocked(Event):
     """`[MSG:Caution: Unlocked]`: `$X` cleared an alarm lock."""
+
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Locked(Event):
+    """`[MSG:'$H'|'$X' to unlock]`: GRBL started (or reset) in its Alarm lock."""
 
     text: str
 

@@ -16,7 +16,13 @@ from printers.protocol.events import (
     StatusReport,
 )
 from printers.protocol.grbl_codes import alarm_meaning, error_meaning
-from printers.protocol.grbl_events import BuildOptions, CheckMode, ProgramEnd, Unlocked
+from printers.protocol.grbl_events import (
+    BuildOptions,
+    CheckMode,
+    Locked,
+    ProgramEnd,
+    Unlocked,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -38,6 +44,7 @@ __all__ = ["Answer", "Response", "parse_response", "parse_status"]
 #   [MSG:Pgm End]             | RESPONSE  | ProgramEnd(): M2/M30 ran
 #   [MSG:Enabled]/[MSG:Disabled] | IMPORTANT | CheckMode(on/off): `$C` toggled
 #   [MSG:Caution: Unlocked]   | IMPORTANT | Unlocked(text): `$X` cleared an alarm
+#   [MSG:'$H'|'$X' to unlock] | IMPORTANT | Locked(text): started in the alarm lock
 #   [MSG:text]                | RESPONSE  | FirmwareMessage(text)
 #   anything else: [GC:..] [PRB:..] [HLP:..] [echo:..] $N=v >line:ok
 #                             | RESPONSE  | FirmwareMessage(line)
@@ -152,6 +159,7 @@ _MESSAGES: dict[str, tuple[LineKind, Event]] = {
     "Enabled": (LineKind.IMPORTANT, CheckMode(enabled=True)),
     "Disabled": (LineKind.IMPORTANT, CheckMode(enabled=False)),
     "Caution: Unlocked": (LineKind.IMPORTANT, Unlocked("Caution: Unlocked")),
+    "'$H'|'$X' to unlock": (LineKind.IMPORTANT, Locked("'$H'|'$X' to unlock")),
 }
 
 

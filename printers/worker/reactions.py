@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from jobs.models import Job
 from printers.protocol import events as ev
 from printers.protocol.events import LineKind
-from printers.protocol.grbl_events import BuildOptions, CheckMode, Unlocked
+from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unlocked
 from printers.streaming import Stream, StreamType, lines_from_text
 from printers.streaming import host as hv
 from printers.worker import spool
@@ -27,6 +27,8 @@ class Reactions:
 
     #: The GRBL alarm the printer shows (ERROR state) until `$X`, homing or a reset.
     grbl_alarm: str = ""
+    #: The alarm shown when GRBL last reset: it boots locked in it (`'$X' to unlock`).
+    _alarm_before_reset: str = ""
 
     # -- protocol events ---------------------------------------------------------
 
@@ -58,7 +60,7 @@ class Reactions:
                 self.status.update(firmware_name=name)
                 if self.printer.is_grbl:
                     self._merge_capabilities({k.lower(): v for k, v in fields.items()})
-            case BuildOptions() | CheckMode() | Unlocked():
+            case BuildOptions() | CheckMode() | Locked() | Unlocked():
                 self._on_grbl_event(event)
             case ev.Capability(name=name, enabled=enabled):
                 self._on_capability(name, enabled=enabled)
@@ -122,6 +124,8 @@ class Reactions:
                     self.note("GRBL check mode is off")
             case Unlocked():
                 self._clear_alarm()
+            case Locked():
+                self._show_alarm(self._alarm_before_reset or "GRBL started in alarm")
 
     def _on_alarm(self: PrinterWorker, message: str) -> None:
         """An alarm stops the job (never carried on) and shows until `$X` or reset."""
@@ -162,6 +166,7 @@ class Reactions:
             )
         else:
             self.stop_streams(f"the firmware reset ({banner!r})")
+        self._alarm_before_reset = self.grbl_alarm
         self.halted = self.grbl_alarm = ""
         self.hello(now)
 

@@ -175,6 +175,7 @@ def test_an_alarm_mid_job_stops_it_and_shows_until_unlocked(
     assert alarmed.state_message.startswith("ALARM:1 hard limit hit")
     assert "$X" in alarmed.state_message
     assert after_reset.state == Printer.State.ERROR
+    assert after_reset.state_message.startswith("ALARM:1 hard limit hit")
     assert reply(unlock) == "ok"
     # The failed job leaves the bed to check (waitstart); the alarm is gone.
     assert unlocked.state == Printer.State.WAITSTART

@@ -21,7 +21,13 @@ from printers.protocol.grbl_codes import (
     error_meaning,
     is_eeprom_write,
 )
-from printers.protocol.grbl_events import BuildOptions, CheckMode, ProgramEnd, Unlocked
+from printers.protocol.grbl_events import (
+    BuildOptions,
+    CheckMode,
+    Locked,
+    ProgramEnd,
+    Unlocked,
+)
 from printers.protocol.grbl_responses import Answer, parse_response, parse_status
 
 ACK, RESPONSE, IMPORTANT = LineKind.ACK, LineKind.RESPONSE, LineKind.IMPORTANT
@@ -86,7 +92,7 @@ READINGS = [
     ("ALARM:42", IMPORTANT, Alarm(42, "ALARM:42 unknown alarm code 42")),
     ("ALARM: Hard limit", IMPORTANT, Alarm(0, "Hard limit")),
     ("[MSG:Reset to continue]", RESPONSE, FirmwareMessage("Reset to continue")),
-    ("[MSG:'$H'|'$X' to unlock]", RESPONSE, FirmwareMessage("'$H'|'$X' to unlock")),
+    ("[MSG:'$H'|'$X' to unlock]", IMPORTANT, Locked("'$H'|'$X' to unlock")),
     (
         "[VER:1.1h.20190825:my router]",
         RESPONSE,
