@@ -115,6 +115,8 @@ class GrblProtocol:
         self._settled = False
         #: An EEPROM write waits for that report: poll for it.
         self._want_settled = False
+        #: Hold EEPROM writes until a report says Idle (off for a file: nothing moves).
+        self.wait_for_idle = True
         #: When the oldest `?` still without any report went out.
         self._unreported_since: float | None = None
         self._events: deque[Event] = deque()
@@ -303,7 +305,7 @@ class GrblProtocol:
             return "an EEPROM write is waiting for its answer"
         if line.sync and pending:
             return "an EEPROM write goes only when nothing else is in flight"
-        if line.sync and not self._settled:
+        if line.sync and self.wait_for_idle and not self._settled:
             return _WAIT_SETTLED
         used = sum(other.size for other in pending)
         if used + line.size > self.rx_buffer:

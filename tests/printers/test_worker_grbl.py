@@ -243,3 +243,15 @@ def test_jog_runs_and_jog_cancel_stops_it_out_of_band(sim_factory, make_printer)
 def test_bad_jogs_are_refused_with_a_reason(moves, feed, error):
     with pytest.raises(ValueError, match=error):
         jog_line(moves, feed)
+
+
+def test_export_for_grbl_keeps_eeprom_writes(make_printer, make_job, tmp_path):
+    from django.core.management import call_command
+
+    printer = make_printer(firmware="grbl")
+    job = make_job(printer, "G0 X1\nG10 L20 P1 X0\n$100=250\nG0 X2\n")
+    out = tmp_path / "out.nc"
+
+    call_command("export_job", str(job.pk), str(out))
+
+    assert out.read_text().splitlines() == ["G0X1", "G10L20P1X0", "$100=250", "G0X2"]
