@@ -168,6 +168,9 @@ class Reactions:
             self.stop_streams(f"the firmware reset ({banner!r})")
         self._alarm_before_reset = self.grbl_alarm
         self.halted = self.grbl_alarm = ""
+        status = self.status.fields.get("machine_status", {})
+        if status.get("check_mode"):  # a reset ends GRBL's check mode
+            self.status.update(machine_status={**status, "check_mode": False})
         self.hello(now)
 
     def stop_motion_after_error(self: PrinterWorker) -> None:

@@ -198,6 +198,10 @@ def test_a_job_in_check_mode_is_reported_as_a_dry_run(
         wait_for(lambda: job_state(job).state not in ("queued", "printing"), 20,
                  "the dry run", step=worker.tick)  # fmt: skip
         after = saved(worker)
+        leave = send_command(printer, "$C", origin="tester")  # GRBL resets after it
+        wait_for(lambda: reply(leave), 10, "check mode off", step=worker.tick)
+        wait_for(lambda: not saved(worker).machine_status["check_mode"], 10,
+                 "check mode off in the status", step=worker.tick)  # fmt: skip
     finally:
         worker.stop()
 
