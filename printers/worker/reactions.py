@@ -196,8 +196,10 @@ class Reactions:
                     self._on_stream_end(stream)
                 case hv.EspCommand(stream=stream, text=text):
                     self.requests.answer_esp(stream, text)
-                case hv.CommandAnswered(stream=stream, ok=ok, message=message):
-                    self.requests.answered(stream, ok=ok, message=message)
+                case hv.CommandAnswered(stream=stream, line=line, ok=ok, message=m):
+                    self.requests.answered(stream, ok=ok, message=m)
+                    if ok and self.grbl_alarm and _homes(line.text):
+                        self._clear_alarm()  # homing found the machine's position
         self.update_state()
 
     def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
@@ -259,6 +261,11 @@ class Reactions:
 
     def _dry_run(self: PrinterWorker) -> bool:
         return bool(getattr(self.protocol, "check_mode", False))
+
+
+def _homes(text: str) -> bool:
+    """`$H` (or `$HX`...): GRBL's homing cycle, which also clears an alarm lock."""
+    return text.strip().upper().startswith("$H")
 
 
 def _is_job(stream: Stream) -> bool:

@@ -259,3 +259,26 @@ def test_export_for_grbl_keeps_eeprom_writes(make_printer, make_job, tmp_path):
     call_command("export_job", str(job.pk), str(out))
 
     assert out.read_text().splitlines() == ["G0X1", "G10L20P1X0", "$100=250", "G0X2"]
+
+
+def test_homing_clears_the_alarm_a_reset_during_motion_left(sim_factory, make_printer):
+    sim = sim_factory("grbl", "--time-scale", "1")
+    printer = grbl_printer(make_printer, sim)  # no status polls: messages only
+    worker = start_worker(printer)
+    try:
+        move = send_command(printer, "G1 X50 F600", origin="tester")
+        wait_for(lambda: reply(move), 10, "the move", step=worker.tick)
+        reset = QueuedCommand.objects.create(printer=printer, text="\x18")
+        wait_for(lambda: worker.grbl_alarm, 10, "the alarm", step=worker.tick)
+        alarmed = saved(worker)
+        home = send_command(printer, "$H", origin="tester")
+        wait_for(lambda: reply(home), 20, "homing", step=worker.tick)
+        homed = saved(worker)
+    finally:
+        worker.stop()
+
+    assert reply(reset) == "ok"
+    assert alarmed.state == Printer.State.ERROR
+    assert alarmed.state_message.startswith("ALARM:3 reset during motion")
+    assert reply(home) == "ok"
+    assert homed.state == Printer.State.IDLE
