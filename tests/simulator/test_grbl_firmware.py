@@ -343,3 +343,10 @@ def test_coordinate_writes_wait_for_the_planner_to_empty():
     assert bench.send("G10 L20 P1 X0\n") == []  # its ok waits for the moves
     assert bench.advance(1.5) == []
     assert bench.advance(1.0) == ["ok"]
+
+
+def test_the_cli_refuses_a_variant_for_marlin(capsys):
+    from printers.simulator.cli import main
+
+    assert main(["marlin", "--variant", "grblhal", "--tcp", "127.0.0.1:0"]) == 2
+    assert "--variant is for grbl only" in capsys.readouterr().err
