@@ -26,7 +26,7 @@ from printers.protocol.events import (
 )
 from printers.protocol.grbl import GrblProtocol
 from printers.protocol.grbl_codes import ALARMS, REALTIME_COMMANDS
-from printers.protocol.grbl_events import ProgramEnd
+from printers.protocol.grbl_events import Locked, ProgramEnd
 
 if TYPE_CHECKING:
     from printers.protocol.link import LinkProtocol
@@ -506,7 +506,7 @@ def test_soft_reset_drops_unwritten_lines_and_waits_for_the_banner() -> None:
     protocol.receive_data(BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n", 0.3)
     assert meanings(protocol) == [
         FirmwareReset("Grbl 1.1h ['$' for help]"),
-        FirmwareMessage("'$H'|'$X' to unlock"),
+        Locked("'$H'|'$X' to unlock"),
     ]
     assert protocol.in_flight == 0
     assert protocol.can_send("G0X3")
