@@ -282,3 +282,31 @@ def test_homing_clears_the_alarm_a_reset_during_motion_left(sim_factory, make_pr
     assert alarmed.state_message.startswith("ALARM:3 reset during motion")
     assert reply(home) == "ok"
     assert homed.state == Printer.State.IDLE
+
+
+def test_a_job_with_eeprom_writes_between_moves_runs_every_line_once(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("grbl", "--time-scale", "1")
+    printer = grbl_printer(make_printer, sim)
+    text = (
+        slow_moves(10)
+        + "$110=600\nG10 L20 P1 X0\n"
+        + "".join(f"G1 X{i} F600\n" for i in range(10, 0, -1))
+        + "G28.1\nM2\n"
+    )
+    job = make_job(printer, text)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: job_state(job).state not in ("queued", "printing"), 30,
+                 "the job's end", step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+
+    job = job_state(job)
+    assert job.state == Job.State.COMPLETED, job.message
+    expected = [c.replace(" ", "") for c in commands_of(text)]
+    wait_for(lambda: len(sim.executed()) >= len(expected) + 1, 10, "the record")
+    ran = [c.replace(" ", "") for c in sim.executed() if c != "$I"]
+    assert ran == expected
+    assert stats(sim)["dropped_bytes"] == 0
