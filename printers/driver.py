@@ -102,6 +102,8 @@ class FileDriver:
         # No status polls: a file has no one to answer them.
         self.protocol = protocol_for(replace(config, status_interval=0))
         self.protocol.printing = True
+        if isinstance(self.protocol, GrblProtocol):
+            self.protocol.wait_for_idle = False  # a file never moves
         self.out = out
         self.lines = 0
 

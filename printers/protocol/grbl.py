@@ -3,24 +3,22 @@
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
     Ack,
     CommandFailed,
+    FirmwareInfo,
     FirmwareReset,
     LinkFailed,
     Received,
     Sent,
     StatusReport,
 )
-from printers.protocol.grbl_codes import (
-    REALTIME_COMMANDS,
-    dwell_seconds,
-    is_eeprom_write,
-)
+from printers.protocol.grbl_codes import REALTIME_COMMANDS
+from printers.protocol.grbl_events import BuildOptions, CheckMode
+from printers.protocol.grbl_lines import Line, check_settings, prepare_line
 from printers.protocol.grbl_responses import Answer, parse_response
 
 if TYPE_CHECKING:
@@ -33,7 +31,8 @@ __all__ = ["GrblProtocol"]
 #  on                    | when                                | then
 #  ----------------------+-------------------------------------+------------------------
 #  send(line)            | counted bytes + len+1 <= rx_buffer  | queued, bytes counted
-#  send(EEPROM write)    | nothing in flight                   | goes alone (ping-pong)
+#  send(EEPROM write)    | nothing in flight, and a report     | goes alone (ping-pong)
+#                        | read since says Idle/Alarm/Check    | (`?` polled meanwhile)
 #  send(anything)        | an EEPROM write in flight           | refused until answered
 #  send(anything)        | `\x18` sent, no banner yet          | refused: GRBL restarts
 #  send(bad line)        | always                              | CommandRejected
@@ -42,12 +41,17 @@ __all__ = ["GrblProtocol"]
 #  ok / error:N          | nothing in flight                   | Received only (stale)
 #  <State|...>           | always                              | StatusReport; progress
 #                        |                                     | if State is working
+#  [OPT:..,blocks,rx]    | always                              | BuildOptions; RX budget
+#                        |                                     | becomes rx - 1
+#  [MSG:Enabled]/Disabled| always                              | CheckMode; check_mode
 #  Grbl <ver> banner     | always                              | FirmwareReset, abandon
 #  ALARM:N, [...], other | always                              | its event, no answer
 #  send_emergency(byte)  | byte is a realtime command          | goes first, uncounted
 #  send_emergency(\x18)  | always                              | unwritten lines drop,
 #                        |                                     | nothing until banner
 #  data_to_send()        | poll due, no `?` pending for < 1 s  | `?` first, uncounted
+#                        | (due every 0.1 s while an EEPROM    |
+#                        | write waits for Idle, polls or not) |
 #  handle_timeout()      | in flight, progress + ack_timeout   | LinkFailed, once per
 #                        | (+ oldest line's G4 dwell) passed   | stall
 #  handle_timeout()      | `\x18` sent, ack_timeout passed     | LinkFailed, unblocked
@@ -55,32 +59,21 @@ __all__ = ["GrblProtocol"]
 # Every received line yields Received(text, kind) before its meaning. GRBL executes
 # lines in order and answers each exactly once, so an answer is the oldest line's.
 # Its 128-byte RX ring drops what overflows, hence the counting; an EEPROM write
-# turns its RX interrupt off, hence the ping-pong.
+# turns its RX interrupt off, hence the ping-pong; and GRBL refuses `$x=` (error:8)
+# or stalls the planner for G10 L2/G28.1 while it moves, hence the wait for Idle.
 
 #: States in which GRBL may hold back `ok` for a long time: the planner is full.
 _WORKING_STATES = frozenset({"Run", "Jog", "Home", "Hold", "Door", "Check"})
 #: GRBL ignores a `?` sent before the previous report went out; ask again after this.
 _POLL_RETRY = 1.0
+#: States in which nothing moves: an EEPROM write may go (GRBL takes `$x=` in Alarm).
+_SETTLED_STATES = frozenset({"Idle", "Alarm", "Check"})
+#: Seconds between `?` polls while an EEPROM write waits for the machine to settle.
+_SETTLE_POLL = 0.1
+_WAIT_SETTLED = "an EEPROM write waits until GRBL reports Idle"
 #: A "line" this long without a newline is noise; hand it over rather than grow forever.
 _MAX_LINE_BYTES = 1024
 _SOFT_RESET = "\x18"
-
-
-@dataclass(frozen=True, slots=True)
-class _Line:
-    """A command line on its way to GRBL or waiting for its answer."""
-
-    #: As written to the wire, without the newline.
-    text: str
-    tag: object
-    #: An EEPROM write: it must be alone in GRBL's buffer (send-response).
-    sync: bool
-    #: Seconds of G4 dwell: GRBL sits Idle that long before answering.
-    dwell: float
-
-    @property
-    def size(self) -> int:
-        return len(self.text) + 1
 
 
 class GrblProtocol:
@@ -101,7 +94,7 @@ class GrblProtocol:
         status_interval: float | None = 0.2,
         compact: bool = True,
     ) -> None:
-        _check_settings(rx_buffer, max_line_length, ack_timeout, status_interval)
+        check_settings(rx_buffer, max_line_length, ack_timeout, status_interval)
         self.rx_buffer = rx_buffer
         self.max_line_length = max_line_length
         self.ack_timeout = ack_timeout
@@ -113,10 +106,23 @@ class GrblProtocol:
         self.lines_sent = 0
         #: The latest status report, or None before the first.
         self.last_status: StatusReport | None = None
+        #: `$C` check mode is on: lines are parsed, nothing moves.
+        self.check_mode = False
+        #: The last `[OPT:...]` read (from `$I`), or None.
+        self.build_options: BuildOptions | None = None
+        self._version = ""
+        #: A report read after the last line was answered said nothing moves.
+        self._settled = False
+        #: An EEPROM write waits for that report: poll for it.
+        self._want_settled = False
+        #: Hold EEPROM writes until a report says Idle (off for a file: nothing moves).
+        self.wait_for_idle = True
+        #: When the oldest `?` still without any report went out.
+        self._unreported_since: float | None = None
         self._events: deque[Event] = deque()
         self._inbox = bytearray()
-        self._outbox: deque[_Line] = deque()  # accepted by send(), not yet written
-        self._waiting: deque[_Line] = deque()  # written, not yet answered
+        self._outbox: deque[Line] = deque()  # accepted by send(), not yet written
+        self._waiting: deque[Line] = deque()  # written, not yet answered
         self._realtime: list[tuple[bytes, str]] = []
         self._now: float | None = None
         self._progress_at = 0.0
@@ -134,18 +140,25 @@ class GrblProtocol:
         instead of the stream waiting forever.
         """
         try:
-            line = self._prepare(text, None)
+            line = prepare_line(text, None, self.max_line_length, compact=self.compact)
         except CommandRejected:
             return True
-        return self._blocker(line) is None
+        blocker = self._blocker(line)
+        if blocker == _WAIT_SETTLED:
+            self._want_settled = True
+        return blocker is None
 
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
         self._now = now
-        line = self._prepare(text, tag)
+        line = prepare_line(text, tag, self.max_line_length, compact=self.compact)
         blocker = self._blocker(line)
         if blocker is not None:
+            if blocker == _WAIT_SETTLED:
+                self._want_settled = True
             raise LocalProtocolError(f"cannot send '{line.text}' now: {blocker}")
+        if line.sync:
+            self._want_settled = False
         if not self.in_flight:
             self._progress_at = now
             self._stall_reported = False
@@ -183,10 +196,13 @@ class GrblProtocol:
         if self._poll_due():
             out += b"?"
             self._last_poll_at = self._poll_pending_since = self._now
+            if self._unreported_since is None:
+                self._unreported_since = self._now
         while self._outbox:
             line = self._outbox.popleft()
             out += line.text.encode("ascii") + b"\n"
             self._events.append(Sent(line.text))
+            self._settled = False
             self._waiting.append(line)
             self.lines_sent += 1
         return bytes(out)
@@ -195,12 +211,19 @@ class GrblProtocol:
         """Forget every line queued or in flight; realtime bytes still go out."""
         self._outbox.clear()
         self._waiting.clear()
+        self._want_settled = False
+        self._unreported_since = None
         self._stall_reported = False
 
     @property
     def in_flight(self) -> int:
         """Lines accepted by send() and not yet answered."""
         return len(self._outbox) + len(self._waiting)
+
+    @property
+    def bytes_in_flight(self) -> int:
+        """Bytes of lines written and not yet answered: what fills GRBL's RX buffer."""
+        return sum(line.size for line in self._waiting)
 
     # -- receiving -----------------------------------------------------------------
 
@@ -230,6 +253,8 @@ class GrblProtocol:
             deadlines.append(self._reset_sent_at + self.ack_timeout)
         elif self.in_flight and not self._stall_reported:
             deadlines.append(self._ack_deadline())
+        elif self._report_deadline() is not None and not self._stall_reported:
+            deadlines.append(self._report_deadline())
         return min((d for d in deadlines if d is not None), default=None)
 
     def handle_timeout(self, now: float) -> None:
@@ -249,44 +274,29 @@ class GrblProtocol:
         if self.in_flight and not self._stall_reported and now >= self._ack_deadline():
             self._stall_reported = True
             self._events.append(LinkFailed(self._stall_message()))
+        report_deadline = self._report_deadline()
+        if report_deadline is not None and not self._stall_reported:
+            self._report_missing(now, report_deadline)
+
+    def _report_missing(self, now: float, deadline: float) -> None:
+        if now >= deadline:
+            self._stall_reported = True
+            self._events.append(
+                LinkFailed(
+                    f"GRBL answered no status poll within {self.ack_timeout:g} s "
+                    "while an EEPROM write waited for it to report Idle"
+                )
+            )
+
+    def _report_deadline(self) -> float | None:
+        """While an EEPROM write waits for a report: when missing reports fail the link."""
+        if not self._want_settled or self._unreported_since is None:
+            return None
+        return self._unreported_since + self.ack_timeout
 
     # -- internals -----------------------------------------------------------------
 
-    def _prepare(self, text: str, tag: object) -> _Line:
-        wire = self._wire_text(text)
-        return _Line(wire, tag, is_eeprom_write(wire), dwell_seconds(wire))
-
-    def _wire_text(self, text: str) -> str:
-        """*text* as GRBL will see it; CommandRejected when it cannot take it."""
-        if not text.strip():
-            raise CommandRejected("empty command: there is nothing to send")
-        bad = next((char for char in text if not " " <= char <= "~"), None)
-        if bad is not None:
-            raise CommandRejected(
-                f"{text!r} holds {bad!r}: GRBL takes printable ASCII only"
-            )
-        realtime = next((char for char in text if char in "?!~"), None)
-        if realtime is not None:
-            raise CommandRejected(
-                f"{text!r} holds {realtime!r}, a GRBL realtime command that would act "
-                "at once; send it alone with send_emergency()"
-            )
-        wire = self._compacted(text.strip())
-        if len(wire) > self.max_line_length:
-            raise CommandRejected(
-                f"'{wire}' is {len(wire)} characters long; GRBL takes at most "
-                f"{self.max_line_length} per line"
-            )
-        return wire
-
-    def _compacted(self, text: str) -> str:
-        # Spaces are free for GRBL to ignore but cost buffer bytes. `$` lines (stored
-        # startup lines, build info), comments and quoted text keep theirs.
-        if not self.compact or text.startswith("$") or any(c in text for c in "(\"'"):
-            return text
-        return text.replace(" ", "")
-
-    def _blocker(self, line: _Line) -> str | None:
+    def _blocker(self, line: Line) -> str | None:
         """Why *line* cannot go now, or None when it can."""
         if self._reset_sent_at is not None:
             return "a soft reset was sent and GRBL has not restarted yet"
@@ -295,6 +305,8 @@ class GrblProtocol:
             return "an EEPROM write is waiting for its answer"
         if line.sync and pending:
             return "an EEPROM write goes only when nothing else is in flight"
+        if line.sync and self.wait_for_idle and not self._settled:
+            return _WAIT_SETTLED
         used = sum(other.size for other in pending)
         if used + line.size > self.rx_buffer:
             return f"GRBL's RX buffer has {self.rx_buffer - used} bytes free"
@@ -316,7 +328,33 @@ class GrblProtocol:
             self.abandon()
             self._reset_sent_at = None
             self._poll_pending_since = None
+            self._settled = self.check_mode = False
+        elif isinstance(meaning, CheckMode):
+            self.check_mode = meaning.enabled
+        elif isinstance(meaning, BuildOptions):
+            self._adopt(meaning)
+        elif isinstance(meaning, FirmwareInfo):
+            meaning = self._identify(meaning)
         self._events.append(meaning)
+
+    def _adopt(self, options: BuildOptions) -> None:
+        """Count against the RX buffer GRBL reports (its ring keeps one byte free)."""
+        self.build_options = options
+        if options.rx_buffer is None or options.rx_buffer < 2:
+            return
+        self.rx_buffer = options.rx_buffer - 1
+        # A tiny buffer shortens the longest line, so send() says why it cannot go.
+        self.max_line_length = min(self.max_line_length, self.rx_buffer - 1)
+
+    def _identify(self, info: FirmwareInfo) -> FirmwareInfo:
+        """`[VER:1.1f...]` then grblHAL's `[FIRMWARE:grblHAL]`: "grblHAL 1.1f..."."""
+        if "VER" in info.fields:
+            self._version = info.fields["VER"]
+            return info
+        if "FIRMWARE" in info.fields and self._version:
+            fields = {**info.fields, "VER": self._version}
+            return FirmwareInfo(f"{info.name} {self._version}", fields)
+        return info
 
     def _answer(self, answer: Answer, now: float) -> None:
         if not self._waiting:
@@ -331,19 +369,28 @@ class GrblProtocol:
 
     def _status(self, report: StatusReport, now: float) -> None:
         self.last_status = report
-        self._poll_pending_since = None
+        self._poll_pending_since = self._unreported_since = None
+        self._stall_reported = self._stall_reported and bool(self.in_flight)
+        state = report.state.partition(":")[0]
+        self.check_mode = state == "Check"
+        if not self.in_flight:
+            # GRBL writes in order: a report read after the last answer is newer.
+            self._settled = state in _SETTLED_STATES
+            if self._settled:
+                self._want_settled = False
         if report.state.partition(":")[0] in _WORKING_STATES:
             # ok is held back while the planner is full; motion proves GRBL is alive.
             self._progress_at = now
             self._stall_reported = False
 
     def _next_poll_at(self) -> float | None:
-        if self.status_interval is None or self._now is None:
+        interval = self.status_interval
+        if self._want_settled and not self._settled:
+            interval = min(interval or _SETTLE_POLL, _SETTLE_POLL)
+        if interval is None or self._now is None:
             return None
-        if self._last_poll_at is None:
-            due = self._now
-        else:
-            due = self._last_poll_at + self.status_interval
+        last = self._last_poll_at
+        due = self._now if last is None else last + interval
         if self._poll_pending_since is not None:
             due = max(due, self._poll_pending_since + _POLL_RETRY)
         return due
@@ -352,7 +399,7 @@ class GrblProtocol:
         due = self._next_poll_at()
         return due is not None and self._now is not None and self._now >= due
 
-    def _oldest(self) -> _Line:
+    def _oldest(self) -> Line:
         return self._waiting[0] if self._waiting else self._outbox[0]
 
     def _ack_deadline(self) -> float:
@@ -363,25 +410,4 @@ class GrblProtocol:
             f"GRBL did not answer '{self._oldest().text}' within "
             f"{self.ack_timeout:g} s and reported no motion; GRBL never drops a line "
             "it took, so the stream cannot be trusted"
-        )
-
-
-def _check_settings(
-    rx_buffer: int,
-    max_line_length: int,
-    ack_timeout: float,
-    status_interval: float | None,
-) -> None:
-    if max_line_length < 1:
-        raise ValueError(f"max_line_length must be at least 1, not {max_line_length}")
-    if rx_buffer < max_line_length + 1:
-        raise ValueError(
-            f"rx_buffer ({rx_buffer}) must hold the longest line and its newline "
-            f"({max_line_length + 1} bytes)"
-        )
-    if not ack_timeout > 0:
-        raise ValueError(f"ack_timeout must be positive, not {ack_timeout}")
-    if status_interval is not None and not status_interval > 0:
-        raise ValueError(
-            f"status_interval must be positive or None, not {status_interval}"
         )

@@ -9,11 +9,13 @@ from printers.protocol.checksum import clean_line
 __all__ = [
     "ALARMS",
     "ERRORS",
+    "JOG_CANCEL",
     "REALTIME_COMMANDS",
     "alarm_meaning",
     "dwell_seconds",
     "error_meaning",
     "is_eeprom_write",
+    "jog_line",
 ]
 
 #: `$n=`, `$Nn=`, `$I=`, `$RST=`: system commands that store something.
@@ -105,6 +107,28 @@ REALTIME_COMMANDS: dict[str, str] = {
     "\xa0": "flood coolant toggle",
     "\xa1": "mist coolant toggle",
 }
+
+
+#: Jog cancel: stops a `$J=` jog (and only a jog), never enters the RX buffer.
+JOG_CANCEL = "\x85"
+
+
+def jog_line(moves: dict[str, float], feed: float, *, relative: bool = True) -> str:
+    """`$J=G91 X10.000 F600`: a jog GRBL runs in its Jog state, cancelled by 0x85.
+
+    *moves* maps axes (X, Y, Z, A, B, C) to mm; ValueError for anything GRBL would
+    refuse (no axis, an unknown axis, a feed that is not positive).
+    """
+    axes = {axis.upper(): value for axis, value in moves.items()}
+    unknown = sorted(set(axes) - set("XYZABC"))
+    if unknown:
+        raise ValueError(f"cannot jog axis {', '.join(unknown)}: GRBL jogs X Y Z A B C")
+    if not axes:
+        raise ValueError("a jog needs at least one axis")
+    if not feed > 0:
+        raise ValueError(f"a jog needs a positive feed rate (mm/min), not {feed}")
+    words = " ".join(f"{axis}{value:.3f}" for axis, value in axes.items())
+    return f"$J={'G91' if relative else 'G90'} {words} F{feed:g}"
 
 
 def error_meaning(code: int) -> str:

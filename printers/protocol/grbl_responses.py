@@ -16,6 +16,13 @@ from printers.protocol.events import (
     StatusReport,
 )
 from printers.protocol.grbl_codes import alarm_meaning, error_meaning
+from printers.protocol.grbl_events import (
+    BuildOptions,
+    CheckMode,
+    Locked,
+    ProgramEnd,
+    Unlocked,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -30,10 +37,16 @@ __all__ = ["Answer", "Response", "parse_response", "parse_status"]
 #   error:N                   | IMPORTANT | Answer(failed, N, "error:N <meaning>")
 #   <State|KEY:value|...>     | ACK       | StatusReport(state, {KEY: value})
 #   Grbl 1.1h ['$' for help]  | IMPORTANT | FirmwareReset(line): GRBL restarted
-#   ALARM:N                   | IMPORTANT | Alarm(N, meaning)
+#   ALARM:N                   | IMPORTANT | Alarm(N, "ALARM:N <meaning>")
 #   [VER:1.1h.20190825:info]  | RESPONSE  | FirmwareInfo("Grbl 1.1h.20190825", ...)
+#   [OPT:VL,15,128(,3...)]    | RESPONSE  | BuildOptions("VL", 15 blocks, 128 RX bytes)
+#   [FIRMWARE:grblHAL]        | RESPONSE  | FirmwareInfo("grblHAL", {FIRMWARE: ...})
+#   [MSG:Pgm End]             | RESPONSE  | ProgramEnd(): M2/M30 ran
+#   [MSG:Enabled]/[MSG:Disabled] | IMPORTANT | CheckMode(on/off): `$C` toggled
+#   [MSG:Caution: Unlocked]   | IMPORTANT | Unlocked(text): `$X` cleared an alarm
+#   [MSG:'$H'|'$X' to unlock] | IMPORTANT | Locked(text): started in the alarm lock
 #   [MSG:text]                | RESPONSE  | FirmwareMessage(text)
-#   anything else: [GC:..] [OPT:..] [PRB:..] [HLP:..] [echo:..] $N=v >line:ok
+#   anything else: [GC:..] [PRB:..] [HLP:..] [echo:..] $N=v >line:ok
 #                             | RESPONSE  | FirmwareMessage(line)
 #
 # Push messages never answer a line; only `ok` and `error:` do. GRBL 0.9 wrote
@@ -114,7 +127,8 @@ def _read_banner(line: str, match: re.Match[str]) -> Response:
 def _read_alarm(line: str, match: re.Match[str]) -> Response:
     detail = match.group(1).strip()
     if detail.isdigit():
-        alarm = Alarm(int(detail), alarm_meaning(int(detail)))
+        code = int(detail)
+        alarm = Alarm(code, f"ALARM:{code} {alarm_meaning(code)}")
     else:
         alarm = Alarm(0, detail or line)
     return Response(LineKind.IMPORTANT, alarm)
@@ -126,8 +140,35 @@ def _read_version(line: str, match: re.Match[str]) -> Response:
     return Response(LineKind.RESPONSE, FirmwareInfo(f"Grbl {version}", fields))
 
 
+def _read_options(line: str, match: re.Match[str]) -> Response:
+    letters, *numbers = match.group(1).split(",")
+    sizes = [int(n) if n.strip().isdigit() else None for n in numbers[:2]]
+    sizes += [None] * (2 - len(sizes))
+    options = BuildOptions(letters, sizes[0], sizes[1], {"OPT": match.group(1)})
+    return Response(LineKind.RESPONSE, options)
+
+
+def _read_firmware(line: str, match: re.Match[str]) -> Response:
+    name = match.group(1).strip()
+    return Response(LineKind.RESPONSE, FirmwareInfo(name, {"FIRMWARE": name}))
+
+
+#: [MSG:...] texts with a meaning of their own (GRBL 1.1's report.c wording).
+_MESSAGES: dict[str, tuple[LineKind, Event]] = {
+    "Pgm End": (LineKind.RESPONSE, ProgramEnd()),
+    "Enabled": (LineKind.IMPORTANT, CheckMode(enabled=True)),
+    "Disabled": (LineKind.IMPORTANT, CheckMode(enabled=False)),
+    "Caution: Unlocked": (LineKind.IMPORTANT, Unlocked("Caution: Unlocked")),
+    "'$H'|'$X' to unlock": (LineKind.IMPORTANT, Locked("'$H'|'$X' to unlock")),
+}
+
+
 def _read_message(line: str, match: re.Match[str]) -> Response:
-    return Response(LineKind.RESPONSE, FirmwareMessage(match.group(1)))
+    text = match.group(1)
+    known = _MESSAGES.get(text.strip())
+    if known is not None:
+        return Response(*known)
+    return Response(LineKind.RESPONSE, FirmwareMessage(text))
 
 
 if TYPE_CHECKING:
@@ -141,5 +182,7 @@ _READERS: tuple[tuple[re.Pattern[str], _Reader], ...] = (
     (re.compile(r"Grbl\w*\s+v?\d"), _read_banner),
     (re.compile(r"ALARM:(.*)$"), _read_alarm),
     (re.compile(r"\[VER:(.*)\]$"), _read_version),
+    (re.compile(r"\[OPT:(.*)\]$"), _read_options),
+    (re.compile(r"\[FIRMWARE:(.*)\]$"), _read_firmware),
     (re.compile(r"\[MSG:(.*)\]$"), _read_message),
 )

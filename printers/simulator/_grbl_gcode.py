@@ -281,7 +281,8 @@ class GcodeState:
                     if words["L"] == 20:
                         value = self.position[i] - self.g92[i] - value
                     self.offsets[system][i] = value
-            actions.append(("eeprom",))
+            # GRBL empties the planner before it writes EEPROM.
+            actions += [("sync",), ("eeprom",)]
         elif nonmodal in (280, 300):
             if any(a in words for a in AXES):
                 self._rapid_to(self._target(words, machine=False), actions)
@@ -289,7 +290,7 @@ class GcodeState:
         elif nonmodal in (281, 301):
             stored = self.g28 if nonmodal == 281 else self.g30
             stored[:] = self.position
-            actions.append(("eeprom",))
+            actions += [("sync",), ("eeprom",)]
         elif nonmodal == 920:
             for i, axis in enumerate(AXES):
                 if axis in words:

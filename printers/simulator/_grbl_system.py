@@ -97,9 +97,7 @@ def _stored(fw: GrblFirmware, key: str, now: float) -> int | Job:
     """Build info, startup lines, restore and settings: all EEPROM."""
     eeprom = [("eeprom",)]
     if key == "I":
-        fw.print_lines(
-            "[VER:1.1h.20190825:]", f"[OPT:V,{fw.planner.capacity},{fw.rx_buffer}]"
-        )
+        _print_build_info(fw)
         return 0
     if key.startswith("I="):
         return fw.play(eeprom, now)
@@ -178,6 +176,20 @@ def status_fields(
     elif count % 10 == 1:
         fields.append("Ov:" + ",".join(str(v) for v in overrides))
     return fields
+
+
+def _print_build_info(fw: GrblFirmware) -> None:
+    """`$I`: grbl 1.1 `[OPT:letters,blocks,rx]`; grblHAL adds axes and its name."""
+    blocks, rx = fw.planner.capacity, fw.rx_buffer
+    if fw.variant == "grblhal":
+        fw.print_lines(
+            "[VER:1.1f.20231210:]",
+            f"[OPT:VNMSL,{blocks},{rx},3,0]",
+            "[NEWOPT:ENUMS,RT+,HOME,SED]",
+            "[FIRMWARE:grblHAL]",
+        )
+    else:
+        fw.print_lines("[VER:1.1h.20190825:]", f"[OPT:V,{blocks},{rx}]")
 
 
 def _print_parameters(fw: GrblFirmware) -> None:

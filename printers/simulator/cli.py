@@ -47,7 +47,15 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ports.add_argument("--record", type=Path, help="append executed commands here")
     ports.add_argument("--control", type=Path, help="Unix socket for control commands")
     machine = parser.add_argument_group("firmware")
-    machine.add_argument("--rx-buffer", type=int, default=128, help="UART ring bytes")
+    machine.add_argument(
+        "--rx-buffer", type=int, help="UART ring bytes (128; grblHAL 1024)"
+    )
+    machine.add_argument(
+        "--variant",
+        choices=("grbl", "grblhal"),
+        default="grbl",
+        help="GRBL only: grbl 1.1h or grblHAL (banner, $I, RX buffer)",
+    )
     machine.add_argument("--bufsize", type=int, default=4, help="Marlin command slots")
     machine.add_argument("--planner", type=int, default=16, help="planner blocks")
     machine.add_argument("--time-scale", type=float, default=1.0, help="0 = instant")
@@ -127,7 +135,9 @@ def _runner_config(
         parser.error("give --link PATH and/or --tcp HOST:PORT")
     if args.baud < 0 or args.latency_ms < 0 or args.time_scale < 0:
         parser.error("--baud, --latency-ms and --time-scale must not be negative")
-    if min(args.rx_buffer, args.bufsize, args.planner) < 1:
+    if args.variant != "grbl" and args.firmware != "grbl":
+        parser.error("--variant is for grbl only")
+    if min(args.rx_buffer or 1, args.bufsize, args.planner) < 1:
         parser.error("--rx-buffer, --bufsize and --planner must be at least 1")
     if args.link is not None and not args.link.parent.is_dir():
         parser.error(f"--link {args.link}: folder {args.link.parent} does not exist")
@@ -177,13 +187,14 @@ def _firmware(
         return GrblFirmware(
             rx_buffer=args.rx_buffer,
             planner=args.planner,
+            variant=args.variant,
             time_scale=args.time_scale,
             faults=faults,
             on_execute=on_execute,
             now=now,
         )
     return MarlinFirmware(
-        rx_buffer=args.rx_buffer,
+        rx_buffer=args.rx_buffer or 128,
         bufsize=args.bufsize,
         planner=args.planner,
         time_scale=args.time_scale,

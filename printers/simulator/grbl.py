@@ -7,7 +7,11 @@ Rules of this module:
    never enter the ring; every other byte waits in a 128-byte ring (overflow is
    lost). Each line gets exactly one `ok` or `error:N`; all lines end in CRLF.
 3. While an EEPROM write runs, arriving bytes are lost (GRBL turns the RX
-   interrupt off), so `$x=`, `G10 L2`, `G28.1`... must be sent ping-pong.
+   interrupt off), so `$x=`, `G10 L2`, `G28.1`... must be sent ping-pong; `$x=`
+   is refused with error:8 unless Idle (or Alarm), and G10 L2/G28.1 first wait
+   for the planner to empty (FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE).
+4. `variant="grblhal"` answers as grblHAL does: its banner, `[FIRMWARE:grblHAL]`
+   and a 1024-byte RX buffer in `$I` (the runner picks the buffer size).
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ if TYPE_CHECKING:
 __all__ = ["GrblFirmware"]
 
 BANNER = "\r\nGrbl 1.1h ['$' for help]"
+#: What each variant prints when it starts.
+BANNERS = {"grbl": BANNER, "grblhal": "\r\nGrblHAL 1.1f ['$' or '$HELP' for help]"}
+#: RX buffer bytes each variant has unless told otherwise (grblHAL drivers: 1024).
+RX_BUFFERS = {"grbl": 128, "grblhal": 1024}
 #: LINE_BUFFER_SIZE 80 holds 79 characters and the terminator.
 MAX_LINE = 79
 #: Seconds an EEPROM write keeps the RX interrupt off (times time_scale).
@@ -51,14 +59,20 @@ class GrblFirmware:
     def __init__(
         self,
         *,
-        rx_buffer: int = 128,
+        rx_buffer: int | None = None,
         planner: int = 16,
+        variant: str = "grbl",
         time_scale: float = 1.0,
         faults: Faults | None = None,
         on_execute: Callable[[str], None] | None = None,
         now: float = 0.0,
     ) -> None:
-        self.rx_buffer = rx_buffer
+        if variant not in BANNERS:
+            raise ValueError(
+                f"unknown GRBL variant {variant!r}; known: {sorted(BANNERS)}"
+            )
+        self.variant = variant
+        self.rx_buffer = rx_buffer = rx_buffer or RX_BUFFERS[variant]
         self.planner_blocks = planner
         self.time_scale = time_scale
         self.faults = faults
@@ -178,7 +192,7 @@ class GrblFirmware:
         self._feed_ov, self._rapid_ov, self._spindle_ov = 100, 100, 100
         self._reports = 0
         self._rate = 0.0
-        self.print_lines(BANNER)
+        self.print_lines(BANNERS[self.variant])
         if self.state == "Alarm":
             self.print_lines(_LOCKED_MESSAGE)
 

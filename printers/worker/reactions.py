@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 from jobs.models import Job
 from printers.protocol import events as ev
 from printers.protocol.events import LineKind
+from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unlocked
 from printers.streaming import Stream, StreamType, lines_from_text
 from printers.streaming import host as hv
 from printers.worker import spool
@@ -23,6 +24,11 @@ _ACTIONS = {"pause": "pause", "paused": "pause", "resume": "resume", "cancel": "
 
 class Reactions:
     """Event handlers: each protocol or host event becomes a DB write and/or a request."""
+
+    #: The GRBL alarm the printer shows (ERROR state) until `$X`, homing or a reset.
+    grbl_alarm: str = ""
+    #: The alarm shown when GRBL last reset: it boots locked in it (`'$X' to unlock`).
+    _alarm_before_reset: str = ""
 
     # -- protocol events ---------------------------------------------------------
 
@@ -49,9 +55,13 @@ class Reactions:
                 }
                 self.status.update(temperatures=temps)
             case ev.StatusReport(state=state, fields=fields):
-                self.status.update(machine_status={"state": state, **fields})
-            case ev.FirmwareInfo(name=name):
+                self._on_grbl_status(state, fields)
+            case ev.FirmwareInfo(name=name, fields=fields):
                 self.status.update(firmware_name=name)
+                if self.printer.is_grbl:
+                    self._merge_capabilities({k.lower(): v for k, v in fields.items()})
+            case BuildOptions() | CheckMode() | Locked() | Unlocked():
+                self._on_grbl_event(event)
             case ev.Capability(name=name, enabled=enabled):
                 self._on_capability(name, enabled=enabled)
             case ev.ActionCommand(action=action):
@@ -61,7 +71,9 @@ class Reactions:
             case ev.FirmwareHalted(message=message):
                 self.stop_streams(f"the firmware halted: {message}", note=True)
                 self.halted = f"{message} (reset the printer, then reconnect)"
-            case ev.FirmwareError(message=message) | ev.Alarm(message=message):
+            case ev.Alarm(message=message):
+                self._on_alarm(message)
+            case ev.FirmwareError(message=message):
                 if self.host.fail_stream(f"the firmware reported an error: {message}"):
                     self.stop_motion_after_error()
             case ev.LinkFailed(message=message):
@@ -71,13 +83,70 @@ class Reactions:
         self.update_state()
 
     def _on_capability(self: PrinterWorker, name: str, *, enabled: bool) -> None:
-        caps = dict(self.status.fields.get("capabilities", {}))
-        caps[name] = enabled
-        self.status.update(capabilities=caps)
+        self._merge_capabilities({name: enabled})
         interval = self.printer.temperature_interval
         if name == "AUTOREPORT_TEMP" and enabled and interval > 0:
             self.autoreport = True
             self.submit_internal(f"M155 S{max(1, round(interval))}")
+
+    def _merge_capabilities(self: PrinterWorker, values: dict[str, object]) -> None:
+        caps = dict(self.status.fields.get("capabilities", {}))
+        caps.update(values)
+        self.status.update(capabilities=caps)
+
+    # -- GRBL --------------------------------------------------------------------
+
+    def _on_grbl_status(
+        self: PrinterWorker, state: str, fields: dict[str, str]
+    ) -> None:
+        check_mode = bool(getattr(self.protocol, "check_mode", False))
+        self.status.update(
+            machine_status={"state": state, **fields, "check_mode": check_mode}
+        )
+        if state.startswith("Alarm"):
+            if not self.grbl_alarm:
+                self._show_alarm("GRBL is in alarm")
+        elif self.grbl_alarm:
+            self._clear_alarm()
+
+    def _on_grbl_event(self: PrinterWorker, event: ev.Event) -> None:
+        match event:
+            case BuildOptions(letters=letters, planner_blocks=blocks, rx_buffer=rx):
+                self._merge_capabilities(
+                    {"options": letters, "planner_blocks": blocks, "rx_buffer": rx}
+                )
+            case CheckMode(enabled=enabled):
+                status = dict(self.status.fields.get("machine_status", {}))
+                self.status.update(machine_status={**status, "check_mode": enabled})
+                if enabled:
+                    self.note("GRBL check mode is on: lines are checked, nothing moves")
+                else:
+                    self.note("GRBL check mode is off")
+            case Unlocked():
+                self._clear_alarm()
+            case Locked():
+                self._show_alarm(self._alarm_before_reset or "GRBL started in alarm")
+
+    def _on_alarm(self: PrinterWorker, message: str) -> None:
+        """An alarm stops the job (never carried on) and shows until `$X` or reset."""
+        if self.host.current_stream is not None:
+            # Its end holds the feed; lines in flight are forgotten (GRBL refuses
+            # them with error:9 while in alarm, or drops them on a hard limit).
+            self.stop_streams(f"GRBL alarm: {message}; the job was stopped", note=True)
+        else:
+            self.stop_streams(f"GRBL alarm: {message}")
+        self._show_alarm(message)
+
+    def _show_alarm(self: PrinterWorker, message: str) -> None:
+        if self.halted and not self.grbl_alarm:
+            return  # a harder stop (a halt) is already shown
+        self.grbl_alarm = message
+        self.halted = f"{message} (send $X to unlock, $H to home, or reset)"
+
+    def _clear_alarm(self: PrinterWorker) -> None:
+        if self.grbl_alarm and self.halted.startswith(self.grbl_alarm):
+            self.halted = ""
+        self.grbl_alarm = ""
 
     def _on_action(self: PrinterWorker, action: str) -> None:
         wanted = _ACTIONS.get(action.lower())
@@ -97,7 +166,11 @@ class Reactions:
             )
         else:
             self.stop_streams(f"the firmware reset ({banner!r})")
-        self.halted = ""
+        self._alarm_before_reset = self.grbl_alarm
+        self.halted = self.grbl_alarm = ""
+        status = self.status.fields.get("machine_status", {})
+        if status.get("check_mode"):  # a reset ends GRBL's check mode
+            self.status.update(machine_status={**status, "check_mode": False})
         self.hello(now)
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
@@ -111,7 +184,8 @@ class Reactions:
         while (event := self.host.next_event()) is not None:
             match event:
                 case hv.StreamStarted(stream=stream) if _is_job(stream):
-                    self.note(f"job {stream.ref} ({stream.name}) started")
+                    dry = " as a dry run (GRBL check mode)" if self._dry_run() else ""
+                    self.note(f"job {stream.ref} ({stream.name}) started{dry}")
                 case hv.StreamPaused(stream=stream) if _is_job(stream):
                     spool.save_progress(stream, state=Job.State.PAUSED)
                     self.note(f"job {stream.ref} paused")
@@ -122,14 +196,20 @@ class Reactions:
                     self._on_stream_end(stream)
                 case hv.EspCommand(stream=stream, text=text):
                     self.requests.answer_esp(stream, text)
-                case hv.CommandAnswered(stream=stream, ok=ok, message=message):
-                    self.requests.answered(stream, ok=ok, message=message)
+                case hv.CommandAnswered(stream=stream, line=line, ok=ok, message=m):
+                    self.requests.answered(stream, ok=ok, message=m)
+                    if ok and self.grbl_alarm and _homes(line.text):
+                        self._clear_alarm()  # homing found the machine's position
         self.update_state()
 
     def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
         if not _is_job(stream):
             self.requests.ended(stream)
             return
+        if stream.outcome == "completed" and self._dry_run() and not stream.message:
+            stream.message = (
+                "dry run in GRBL check mode: every line checked, nothing moved"
+            )
         state = spool.finish(stream)
         self.waitstart = not self.printer.auto_start
         text = f"job {stream.ref} ({stream.name}) {state.label}"
@@ -178,6 +258,14 @@ class Reactions:
     def submit_internal(self: PrinterWorker, text: str) -> None:
         lines = lines_from_text(text)
         self.host.submit(Stream(StreamType.SINGLE_COMMAND, lines, name=text))
+
+    def _dry_run(self: PrinterWorker) -> bool:
+        return bool(getattr(self.protocol, "check_mode", False))
+
+
+def _homes(text: str) -> bool:
+    """`$H` (or `$HX`...): GRBL's homing cycle, which also clears an alarm lock."""
+    return text.strip().upper().startswith("$H")
 
 
 def _is_job(stream: Stream) -> bool:

@@ -26,6 +26,7 @@ from printers.protocol.events import (
 )
 from printers.protocol.grbl import GrblProtocol
 from printers.protocol.grbl_codes import ALARMS, REALTIME_COMMANDS
+from printers.protocol.grbl_events import Locked, ProgramEnd
 
 if TYPE_CHECKING:
     from printers.protocol.link import LinkProtocol
@@ -104,7 +105,8 @@ class FakeGrbl:
                     self.dropped += 1
             elif byte == ord("?"):
                 free = self.RING - len(self.ring)
-                self.output += f"<Run|MPos:0.000,0.000,0.000|Bf:15,{free}>\r\n".encode()
+                state = "Run" if self.ring else "Idle"
+                self.output += f"<{state}|MPos:0,0,0|Bf:15,{free}>\r\n".encode()
             elif byte in b"!~\x18" or byte >= 0x80:
                 continue
             elif len(self.ring) >= self.RING:
@@ -284,14 +286,18 @@ def test_eeprom_writes_go_ping_pong(text: str) -> None:
     with pytest.raises(LocalProtocolError, match="nothing else is in flight"):
         protocol.send(text, 0.0, tag="eeprom")
     protocol.data_to_send()
-    protocol.receive_data(b"ok\n", 0.1)
+    protocol.receive_data(b"ok\n<Idle|MPos:0,0,0>\n", 0.1)
     assert protocol.can_send(text)
     protocol.send(text, 0.1, tag="eeprom")
     assert protocol.data_to_send() == (as_wire(text) + "\n").encode()
     assert not protocol.can_send("G0X1")
     assert not protocol.can_send("$$")
     protocol.receive_data(b"ok\n", 0.2)
-    assert meanings(protocol) == [Ack("before"), Ack("eeprom")]
+    assert meanings(protocol) == [
+        Ack("before"),
+        StatusReport("Idle", {"MPos": "0,0,0"}),
+        Ack("eeprom"),
+    ]
     assert protocol.can_send("G0X1")
 
 
@@ -349,9 +355,9 @@ def test_push_messages_never_consume_an_answer() -> None:
         0.1,
     )
     assert meanings(protocol) == [
-        FirmwareMessage("Pgm End"),
+        ProgramEnd(),
         StatusReport("Idle", {"MPos": "0,0,0"}),
-        Alarm(2, ALARMS[2]),
+        Alarm(2, f"ALARM:2 {ALARMS[2]}"),
         FirmwareMessage("[GC:G0 G54]"),
         FirmwareMessage("$0=10"),
         FirmwareMessage(">G20:ok"),
@@ -365,7 +371,7 @@ def test_alarm_is_important_and_explained() -> None:
     protocol.receive_data(b"ALARM:1\r\n", 0.0)
     assert drain(protocol) == [
         Received("ALARM:1", LineKind.IMPORTANT),
-        Alarm(1, "hard limit hit; position is likely lost, home again"),
+        Alarm(1, "ALARM:1 hard limit hit; position is likely lost, home again"),
     ]
 
 
@@ -500,7 +506,7 @@ def test_soft_reset_drops_unwritten_lines_and_waits_for_the_banner() -> None:
     protocol.receive_data(BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n", 0.3)
     assert meanings(protocol) == [
         FirmwareReset("Grbl 1.1h ['$' for help]"),
-        FirmwareMessage("'$H'|'$X' to unlock"),
+        Locked("'$H'|'$X' to unlock"),
     ]
     assert protocol.in_flight == 0
     assert protocol.can_send("G0X3")
@@ -670,6 +676,8 @@ def test_polling_and_ack_deadlines_combine() -> None:
 )
 def test_compact_mode_strips_spaces_from_plain_gcode(text: str, wire: str) -> None:
     protocol = make()
+    protocol.receive_data(b"<Idle|MPos:0,0,0>\n", 0.0)  # EEPROM writes wait for it
+    drain(protocol)
     protocol.send(text, 0.0)
     assert protocol.data_to_send() == f"{wire}\n".encode()
     assert drain(protocol) == [Sent(wire)]

@@ -21,6 +21,13 @@ from printers.protocol.grbl_codes import (
     error_meaning,
     is_eeprom_write,
 )
+from printers.protocol.grbl_events import (
+    BuildOptions,
+    CheckMode,
+    Locked,
+    ProgramEnd,
+    Unlocked,
+)
 from printers.protocol.grbl_responses import Answer, parse_response, parse_status
 
 ACK, RESPONSE, IMPORTANT = LineKind.ACK, LineKind.RESPONSE, LineKind.IMPORTANT
@@ -80,12 +87,12 @@ READINGS = [
         FirmwareReset("GrblHAL 1.1f ['$' or '$HELP' for help]"),
     ),
     ("Grbl is great", RESPONSE, FirmwareMessage("Grbl is great")),
-    ("ALARM:1", IMPORTANT, Alarm(1, ALARMS[1])),
-    ("ALARM:10", IMPORTANT, Alarm(10, ALARMS[10])),
-    ("ALARM:42", IMPORTANT, Alarm(42, "unknown alarm code 42")),
+    ("ALARM:1", IMPORTANT, Alarm(1, f"ALARM:1 {ALARMS[1]}")),
+    ("ALARM:10", IMPORTANT, Alarm(10, f"ALARM:10 {ALARMS[10]}")),
+    ("ALARM:42", IMPORTANT, Alarm(42, "ALARM:42 unknown alarm code 42")),
     ("ALARM: Hard limit", IMPORTANT, Alarm(0, "Hard limit")),
     ("[MSG:Reset to continue]", RESPONSE, FirmwareMessage("Reset to continue")),
-    ("[MSG:'$H'|'$X' to unlock]", RESPONSE, FirmwareMessage("'$H'|'$X' to unlock")),
+    ("[MSG:'$H'|'$X' to unlock]", IMPORTANT, Locked("'$H'|'$X' to unlock")),
     (
         "[VER:1.1h.20190825:my router]",
         RESPONSE,
@@ -98,7 +105,26 @@ READINGS = [
         RESPONSE,
         FirmwareInfo("Grbl 1.1h.20190825", {"VER": "1.1h.20190825", "INFO": ""}),
     ),
-    ("[OPT:V,15,128]", RESPONSE, FirmwareMessage("[OPT:V,15,128]")),
+    (
+        "[OPT:V,15,128]",
+        RESPONSE,
+        BuildOptions("V", 15, 128, {"OPT": "V,15,128"}),
+    ),
+    (
+        "[OPT:VNMSL,35,1024,3,0]",
+        RESPONSE,
+        BuildOptions("VNMSL", 35, 1024, {"OPT": "VNMSL,35,1024,3,0"}),
+    ),
+    ("[OPT:VL]", RESPONSE, BuildOptions("VL", None, None, {"OPT": "VL"})),
+    (
+        "[FIRMWARE:grblHAL]",
+        RESPONSE,
+        FirmwareInfo("grblHAL", {"FIRMWARE": "grblHAL"}),
+    ),
+    ("[MSG:Pgm End]", RESPONSE, ProgramEnd()),
+    ("[MSG:Enabled]", IMPORTANT, CheckMode(enabled=True)),
+    ("[MSG:Disabled]", IMPORTANT, CheckMode(enabled=False)),
+    ("[MSG:Caution: Unlocked]", IMPORTANT, Unlocked("Caution: Unlocked")),
     (
         "[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]",
         RESPONSE,

@@ -303,3 +303,50 @@ def test_faults_drop_oks_and_stall_lines():
     bench = Bench(faults=Faults(FaultConfig(busy_after=1, busy_seconds=2.0)))
     assert bench.send("G0 X1\n") == []
     assert bench.advance(2.0) == ["ok"]
+
+
+def test_grblhal_variant_has_its_banner_build_info_and_a_big_ring():
+    bench = Bench(variant="grblhal")
+    assert bench.boot == ["", "GrblHAL 1.1f ['$' or '$HELP' for help]"]
+    assert bench.send("$I\n") == [
+        "[VER:1.1f.20231210:]",
+        "[OPT:VNMSL,15,1024,3,0]",
+        "[NEWOPT:ENUMS,RT+,HOME,SED]",
+        "[FIRMWARE:grblHAL]",
+        "ok",
+    ]
+    bench.send(moves(16))  # the planner is full: the ring fills
+    waiting = "".join(f"G1 X{n:03}\n" for n in range(100))  # 800 bytes
+    bench.send(waiting)
+    assert bench.fw.dropped_bytes == 0
+    assert "|Bf:0,224|" in bench.status()
+
+
+def test_an_unknown_variant_is_refused():
+    with pytest.raises(ValueError, match="unknown GRBL variant 'smoothie'"):
+        GrblFirmware(variant="smoothie")
+
+
+@pytest.mark.parametrize("line", ["$100=200", "$N0=G21", "$I=router", "$RST=$"])
+def test_eeprom_commands_are_refused_while_the_machine_moves(line):
+    bench = Bench()
+    assert bench.send(moves(2)) == ["ok", "ok"]
+    assert bench.send(line + "\n") == ["error:8"]
+    bench.advance(3)
+    bench.send(line + "\n")  # Idle now: the write runs
+    assert "ok" in bench.advance(0.1)
+
+
+def test_coordinate_writes_wait_for_the_planner_to_empty():
+    bench = Bench()
+    assert bench.send(moves(2)) == ["ok", "ok"]
+    assert bench.send("G10 L20 P1 X0\n") == []  # its ok waits for the moves
+    assert bench.advance(1.5) == []
+    assert bench.advance(1.0) == ["ok"]
+
+
+def test_the_cli_refuses_a_variant_for_marlin(capsys):
+    from printers.simulator.cli import main
+
+    assert main(["marlin", "--variant", "grblhal", "--tcp", "127.0.0.1:0"]) == 2
+    assert "--variant is for grbl only" in capsys.readouterr().err
