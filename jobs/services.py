@@ -231,8 +231,12 @@ def _create_job(
 
 
 def send_command(printer: Printer, text: str, *, origin: str = "") -> QueuedCommand:
-    """Queue a command (or several lines) for the printer; emergencies skip the queue."""
-    text = text.strip()
+    """Queue a command (or several lines) for the printer; emergencies skip the queue.
+
+    Only blanks and line ends are trimmed: Python counts GRBL's realtime bytes 0x84
+    and 0x85 (jog cancel) as whitespace too.
+    """
+    text = text.strip(" \t\r\n")
     if not text:
         raise ValueError("empty command")
     if "\x00" in text:

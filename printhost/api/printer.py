@@ -97,7 +97,7 @@ async def send(request: HttpRequest, slug: str) -> HttpResponse:
     Emergencies (M112, M108, M410) skip every queue and are accepted offline too.
     """
     params = request_params(request)
-    command = (params.get("cmd") or "").strip()
+    command = (params.get("cmd") or "").strip(" \t\r\n")
     printer = await sync_to_async(printer_for)(request, slug, Role.OPERATOR)
     await sync_to_async(refuse_acting_get)(request, "send")
     if not command:

@@ -222,7 +222,7 @@ def test_jog_runs_and_jog_cancel_stops_it_out_of_band(sim_factory, make_printer)
         wait_for(lambda: worker.status.fields.get("machine_status", {}).get("state")
                  == "Jog", 10, "the jog", step=worker.tick)  # fmt: skip
         sent_before = worker.protocol.lines_sent
-        cancel = QueuedCommand.objects.create(printer=printer, text=JOG_CANCEL)
+        cancel = send_command(printer, JOG_CANCEL, origin="tester")
         wait_for(lambda: worker.status.fields["machine_status"]["state"] == "Idle",
                  10, "the cancel", step=worker.tick)  # fmt: skip
         status = worker.status.fields["machine_status"]
