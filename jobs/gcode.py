@@ -104,7 +104,7 @@ def command_problem(text: str, *, grbl: bool = False) -> str:
         if ord(bad) < 0x80:
             what = f"control byte 0x{ord(bad):02x}"
         elif bad == "\ufffd":
-            what = "a byte that is not UTF-8 text"
+            what = "a byte that is not UTF-8 text (is this a binary file?)"
         else:
             what = f"{bad!r} (U+{ord(bad):04X})"
         return (
