@@ -4,6 +4,7 @@ from __future__ import annotations
 
 __all__ = [
     "BOOT",
+    "BOOT_NOISE",
     "ERR_CHECKSUM",
     "ERR_LINE_NO",
     "ERR_NO_CHECKSUM",
@@ -25,6 +26,9 @@ BOOT = (
     "echo:Compiled: Jun 20 2024",
     "echo: Free Memory: 2683  PlannerBufferBytes: 1600",
 )
+
+#: What a bootloader or a UART waking up may put before `start` (no line end).
+BOOT_NOISE = "\xfe\xff\x00"
 
 # language.h: STR_ERR_LINE_NO, STR_ERR_CHECKSUM_MISMATCH, STR_ERR_NO_CHECKSUM.
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from printers.simulator.faults import FaultConfig, Faults
+from printers.simulator.faults import RESET_BANNERS, FaultConfig, Faults
 from printers.simulator.grbl import GrblFirmware
 from printers.simulator.marlin import MarlinFirmware
 from printers.simulator.runner import (
@@ -64,6 +64,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     faults.add_argument("--seed", type=int)
     faults.add_argument("--drop-ok-every", type=int, default=0, metavar="N")
     faults.add_argument("--reset-after", type=int, default=0, metavar="N")
+    faults.add_argument(
+        "--reset-banner", choices=RESET_BANNERS, default="start",
+        help="what the reset-after reset prints (none: a silent reset)",
+    )  # fmt: skip
     faults.add_argument("--busy-after", type=int, default=0, metavar="N")
     faults.add_argument("--busy-seconds", type=float, default=0.0, metavar="S")
     faults.add_argument("--close-after", type=int, default=0, metavar="N")
@@ -139,6 +143,7 @@ def _fault_config(
         seed=args.seed,
         drop_ok_every=args.drop_ok_every,
         reset_after=args.reset_after,
+        reset_banner=args.reset_banner,
         busy_after=args.busy_after,
         busy_seconds=args.busy_seconds,
         close_after=args.close_after,

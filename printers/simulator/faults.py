@@ -5,7 +5,10 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 
-__all__ = ["FaultConfig", "Faults"]
+__all__ = ["RESET_BANNERS", "FaultConfig", "Faults"]
+
+#: What a reset prints (FaultConfig.reset_banner).
+RESET_BANNERS = ("start", "noise", "none")
 
 #: Replacement bytes for a corrupted line: printable, never a line end, never one
 #: of GRBL's realtime characters, so a corrupted line stays one (wrong) line.
@@ -23,8 +26,11 @@ class FaultConfig:
     drop_ok_every: int = 0
     #: Drop this share (0..1) of oks at random.
     drop_ok_share: float = 0.0
-    #: Reset the firmware once, after N executed commands.
+    #: Reset the firmware once, after N executed commands ...
     reset_after: int = 0
+    #: ... printing this banner: "start" (Marlin's), "noise" (bootloader bytes
+    #: before `start`), "none" (a silent reset: nothing at all).
+    reset_banner: str = "start"
     #: Stay busy (no ok, keepalives) for *busy_seconds* at the Nth command, once.
     busy_after: int = 0
     busy_seconds: float = 0.0
@@ -41,6 +47,8 @@ class FaultConfig:
         for name in ("drop_ok_every", "reset_after", "busy_after", "close_after"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must not be negative")
+        if self.reset_banner not in RESET_BANNERS:
+            raise ValueError(f"reset_banner must be one of {', '.join(RESET_BANNERS)}")
         if self.busy_seconds < 0 or (self.reopen_after or 0) < 0:
             raise ValueError("durations must not be negative")
 

@@ -117,7 +117,7 @@ class MarlinFirmware:
         """Everything printed since the last call."""
         if not self._out:
             return b""
-        data = "".join(self._out).encode("ascii", "replace")
+        data = "".join(self._out).encode("latin-1", "replace")
         self._out.clear()
         return data
 
@@ -136,8 +136,12 @@ class MarlinFirmware:
 
     # -- control (the runner's control socket and faults) ---------------------------
 
-    def reset(self, now: float) -> None:
-        """Power-on or reset: forget everything, print the boot banner."""
+    def reset(self, now: float, banner: str = "start") -> None:
+        """Power-on or reset: forget everything, print the boot banner.
+
+        *banner* "noise" puts bootloader garbage before `start`; "none" prints
+        nothing (a reset the host can only notice by the line numbers).
+        """
         self._clock = now
         self.killed = False
         self._reader.flush()
@@ -159,7 +163,10 @@ class MarlinFirmware:
             now=now,
         )
         self._handlers = self._handler_table()
-        self._print(*text.BOOT)
+        if banner == "noise":
+            self._out.append(text.BOOT_NOISE)
+        if banner != "none":
+            self._print(*text.BOOT)
 
     def halt(self, now: float) -> None:
         """kill(): what M112 does. Nothing works until `reset`."""
@@ -339,7 +346,7 @@ class MarlinFirmware:
         self._queue.popleft()
         self._keepalive_at = None  # idle() between commands restarts its timer
         if self.faults is not None and self.faults.reset_due(self.executed_count):
-            self.reset(now)
+            self.reset(now, self.faults.config.reset_banner)
 
     def _update_busy(self, now: float) -> None:
         """host_keepalive: `busy: processing` every interval while a command blocks."""
