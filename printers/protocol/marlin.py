@@ -42,7 +42,7 @@
 #   wait                          | T2                                  | -
 #   busy:                         | progress, busy_timeout applies      | Busy
 #   T:.. B:.. report              | progress if a long command is oldest| Temperature..
-#   start                         | abandon() (F2 follows)              | FirmwareReset
+#   start (also after junk bytes) | abandon() (F2 follows)              | FirmwareReset
 #   kill()/thermal/`!!`/fatal:    | abandon()                           | FirmwareHalted
 #   other Error:                  | -                                   | FirmwareError
 #   //action:, FIRMWARE_NAME:,    | -                                   | ActionCommand,
@@ -65,6 +65,13 @@
 #   R6  The first Resend m (or skip m-1) after a timeout proves lines < m arrived:
 #       they are acknowledged, and the re-sent copies among them (each will bring
 #       its own Resend m) become the dup_budget of m. Timeout recovery ends.
+#   R7  A Resend for a line already acknowledged (below the oldest unacknowledged
+#       line), when it names the first line after the M110 or lies more than
+#       RESET_GAP lines back, means the firmware reset without a readable `start`
+#       (a silent reset, boot noise): FirmwareReset, abandon(); nothing is
+#       replayed. Lost oks only make the firmware ask for *later* lines; only
+#       oks taken for the wrong line (R1 with the Error and Resend lost) make it
+#       ask for earlier ones, one line per such ok.
 #   Acknowledging a line >= the recovery's n ends the recovery.
 #
 # Timeouts (next_deadline / handle_timeout)
@@ -93,9 +100,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
-    FirmwareMessage,
     FirmwareReset,
-    LineKind,
     LinkFailed,
     Received,
     Sent,
@@ -167,6 +172,7 @@ class MarlinProtocol:
             self._window,
             self._events,
             self._fail,
+            self._silent_reset,
             max_resends=max_resends,
             max_timeouts=max_timeouts,
             ack_timeout=ack_timeout,
@@ -315,13 +321,8 @@ class MarlinProtocol:
     # -- replies ---------------------------------------------------------------------
 
     def _handle_line(self, raw: bytes) -> None:
-        try:
-            reply = parse_response(raw.decode("utf-8").strip())
-        except UnicodeDecodeError:
-            text = raw.decode("utf-8", errors="replace").strip()
-            reply = Reply(
-                ReplyKind.OTHER, LineKind.RESPONSE, text, event=FirmwareMessage(text)
-            )
+        # Undecodable bytes become U+FFFD: junk that only `start` may follow.
+        reply = parse_response(raw.decode("utf-8", errors="replace").strip())
         self._events.append(Received(reply.text, reply.line_kind))
         if reply.kind is not ReplyKind.OK:
             self._recovery.awaiting_ok = False
@@ -354,7 +355,7 @@ class MarlinProtocol:
         self._on_information(reply)
 
     def _on_start(self, reply: Reply) -> None:
-        self._events.append(FirmwareReset(reply.text))
+        self._events.append(reply.event or FirmwareReset(reply.text))
         self.abandon()
 
     def _on_halt(self, reply: Reply) -> None:
@@ -380,6 +381,11 @@ class MarlinProtocol:
         ReplyKind.LINE_NUMBER_ERROR: _on_resend_error,
         ReplyKind.CHECKSUM_ERROR: _on_resend_error,
     }
+
+    def _silent_reset(self, banner: str) -> None:
+        """R7: the firmware counts from zero again without having said so."""
+        self._events.append(FirmwareReset(banner))
+        self.abandon()
 
     def _fail(self, message: str) -> None:
         self._events.append(LinkFailed(message))

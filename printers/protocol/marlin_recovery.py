@@ -21,6 +21,11 @@ _LONG_RUNNING = frozenset(
     {"M109", "M190", "M191", "M303", "G28", "G29", "M400", "G4", "M0", "M1", "M600"}
 )
 _RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
+#: R7: how far behind the oldest unacknowledged line a Resend may legitimately
+#: point. Only oks taken for the wrong line (an error's ok whose Error and
+#: Resend lines were both lost to line noise) make the firmware ask for a line
+#: the host counts as acknowledged, one line per such ok.
+RESET_GAP = 16
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -37,6 +42,7 @@ class Recovery:
         window: LineWindow,
         events: deque[Event],
         fail: Callable[[str], None],
+        reset: Callable[[str], None],
         *,
         max_resends: int,
         max_timeouts: int,
@@ -44,6 +50,7 @@ class Recovery:
         busy_timeout: float,
     ) -> None:
         self._window, self._events, self._fail = window, events, fail
+        self._reset_seen = reset
         self._max_resends, self._max_timeouts = max_resends, max_timeouts
         self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
         #: Statistics: genuine resend requests served, ack timeouts.
@@ -92,6 +99,11 @@ class Recovery:
         if m110 is not None:  # F3: about the M110 itself, whatever number it names
             self._genuine_resend(m110, _context(reply, previous))
             return
+        if self._is_reset(n):
+            oldest = window.oldest_unacked()
+            self._reset_seen(f"{reply.text} after line {oldest - 1} was acknowledged")
+            self.awaiting_ok = True  # R1 still holds for the ok that follows
+            return
         copies = self._ack_received(n) if self._after_timeout else 0
         self._after_timeout = False
         if copies:
@@ -109,6 +121,13 @@ class Recovery:
             )
             return
         self._genuine_resend(n, _context(reply, previous))
+
+    def _is_reset(self, n: int) -> bool:
+        """R7: a Resend for an acknowledged line, line 1 or far back, is a reset."""
+        oldest = self._window.oldest_unacked()
+        if n >= oldest:
+            return False
+        return n == self._window.history.first + 1 or oldest - n > RESET_GAP
 
     def _is_duplicate(self, n: int, previous: Reply | None) -> bool:
         kind = previous.kind if previous else None

@@ -98,6 +98,8 @@ _TEMPERATURE = re.compile(
     r"(?:^|\s)(T\d*|B|C|P|L)\s*:\s*(-?\d+(?:\.\d*)?)(?:\s*/\s*(-?\d+(?:\.\d*)?))?"
 )
 _TEMPERATURE_START = re.compile(r"(?:T\d*|B|C)\s*:\s*-?\d")
+#: Bytes no firmware prints on purpose: a bootloader's or a waking UART's noise.
+_JUNK = re.compile(r"[^\x20-\x7e]")
 _INFO_KEY = re.compile(r"(?:^|\s)([A-Z][A-Z0-9_]{2,}):")
 _CAPABILITY = re.compile(r"Cap:([A-Za-z0-9_]+):\s*([01])$")
 
@@ -151,8 +153,8 @@ def parse_response(line: str) -> Reply:
 
 
 def _parse_information(text: str) -> Reply:
-    if text == "start":
-        return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset(text))
+    if text == "start" or (text.endswith("start") and _JUNK.search(text[:-5])):
+        return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset("start"))
     if text.startswith("//action:"):
         action, _, argument = text[9:].strip().partition(" ")
         event = ActionCommand(action, argument.strip())

@@ -164,6 +164,14 @@ class LineWindow:
             self.bytes_in_flight + line.cost <= self._rx_buffer
         )
 
+    def oldest_unacked(self) -> int:
+        """The number of the oldest numbered line not acknowledged yet (R7)."""
+        oldest = self.rewind_next if self.rewinding else self.next_n
+        for line in self.live:
+            if line.number is not None and line.number < oldest:
+                oldest = line.number
+        return oldest
+
     def m110_next(self) -> bool:
         """True when the M110 itself waits to be re-sent."""
         return self.rewind_next == self.history.first < self.rewind_end

@@ -416,17 +416,19 @@ def test_repetier_skip_is_a_duplicate() -> None:
     assert [e.line_number for e in log if isinstance(e, ResendServed)] == [2]
 
 
-def test_resend_far_back_in_the_job_uses_the_whole_history() -> None:
+def test_r7_resend_far_back_in_the_job_is_a_reset_not_a_replay() -> None:
     proto, firmware = MarlinProtocol(checksums="always"), TinyMarlin()
     job = [f"G1 X{i}" for i in range(300)]
     run(proto, firmware, job)
     proto.send("G1 X300", 5.0, tag="last")
     proto.data_to_send()
-    proto.receive_data(b"Resend: 3\nok\n", 5.1)  # the firmware lost its place
-    assert ResendServed(3, "Resend: 3") in events(proto)
-    proto.handle_timeout(proto.next_deadline() or 6.0)
-    assert proto.data_to_send() == f"{format_line(3, 'G1 X2')}\n".encode()
-    assert events(proto) == [Sent(format_line(3, "G1 X2"), 3, resend=True)]
+    proto.receive_data(b"Resend: 3\nok\n", 5.1)  # lines 1..300 were acknowledged
+    assert meaning(proto) == [
+        FirmwareReset("Resend: 3 after line 300 was acknowledged")
+    ]
+    assert proto.in_flight == 0
+    assert proto.next_deadline() is None
+    assert proto.data_to_send() == b""
 
 
 def test_resend_limit_fails_the_link() -> None:
