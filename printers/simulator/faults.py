@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import random
 from dataclasses import dataclass
 
@@ -22,6 +23,11 @@ class FaultConfig:
     #: Share (0..1) of received lines that get one byte replaced.
     corrupt: float = 0.0
     seed: int | None = None
+    #: Share (0..1) of bytes garbled on the wire, towards the firmware and towards
+    #: the host: a byte is replaced (sometimes by a line end) or lost, and a line
+    #: end may be lost (two lines merge).
+    noise_to_firmware: float = 0.0
+    noise_to_host: float = 0.0
     #: Drop the ok of every Nth command.
     drop_ok_every: int = 0
     #: Drop this share (0..1) of oks at random.
@@ -41,7 +47,7 @@ class FaultConfig:
 
     def validate(self) -> None:
         """Raise ValueError naming the first setting out of range."""
-        for name in ("corrupt", "drop_ok_share"):
+        for name in ("corrupt", "drop_ok_share", "noise_to_firmware", "noise_to_host"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be between 0 and 1")
         for name in ("drop_ok_every", "reset_after", "busy_after", "close_after"):
@@ -69,6 +75,8 @@ class Faults:
         self._fired: set[str] = set()
         self.corrupted = 0
         self.dropped_oks = 0
+        #: Bytes garbled on the wire (replaced, lost, line ends lost or made).
+        self.garbled = 0
 
     def corrupt_line(self, line: bytes) -> bytes:
         """*line* (no line end), with one byte replaced for the configured share of lines.
@@ -86,6 +94,33 @@ class Faults:
         replacement = choices[self._random.randrange(len(choices))]
         self.corrupted += 1
         return line[:position] + bytes((replacement,)) + line[position + 1 :]
+
+    def garble(self, data: bytes, share: float) -> bytes:
+        """*data* as line noise leaves it: each byte hit with probability *share*.
+
+        A hit byte is replaced by a random one (one time in eight by `\n`: the
+        line splits), or lost one time in eight; a hit `\n` is lost (two lines
+        merge). Hits are found by geometric skips, not a draw per byte.
+        """
+        if share <= 0 or not data:
+            return data
+        out = bytearray(data)
+        rng = self._random
+        position = -1
+        log_miss = math.log1p(-share) if share < 1 else -math.inf
+        while True:
+            position += 1 + int(math.log(1.0 - rng.random()) / log_miss)
+            if position >= len(out):
+                return bytes(out)
+            self.garbled += 1
+            roll = rng.random()
+            if out[position] == 0x0A or roll < 0.125:
+                del out[position]
+                position -= 1
+            elif roll < 0.25:
+                out[position] = 0x0A
+            else:
+                out[position] = (out[position] + rng.randrange(1, 256)) % 256
 
     def drop_ok(self) -> bool:
         """True when the ok about to be sent should be lost."""
