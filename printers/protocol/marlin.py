@@ -275,6 +275,8 @@ class MarlinProtocol:
     def data_to_send(self) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
         self._pump()
+        if self._window.outbox:
+            self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
         lines = self._window.take_unwritten()
         for line in lines:
             self._events.append(Sent(line.wire, line.number, line.resend))
@@ -283,16 +285,25 @@ class MarlinProtocol:
 
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
-        candidates = (self._window.drain_until, self._recovery.deadline())
+        recovery = self._recovery
+        candidates = (
+            self._window.drain_until,
+            recovery.deadline(),
+            recovery.error_deadline(),
+        )
         deadlines = [d for d in candidates if d is not None]
         return min(deadlines) if deadlines else None
 
     def handle_timeout(self, now: float) -> None:
         """End a finished drain; on a passed ack deadline apply T1."""
         self._window.advance(now)
-        deadline = self._recovery.deadline()
+        recovery = self._recovery
+        error_deadline = recovery.error_deadline()
+        if error_deadline is not None and now >= error_deadline:
+            recovery.error_timeout(printing=self.printing)
+        deadline = recovery.deadline()
         if deadline is not None and now >= deadline:
-            self._recovery.timeout(printing=self.printing)
+            recovery.timeout(printing=self.printing)
         self._pump()
 
     def abandon(self) -> None:
@@ -326,6 +337,8 @@ class MarlinProtocol:
         self._events.append(Received(reply.text, reply.line_kind))
         if reply.kind is not ReplyKind.OK:
             self._recovery.awaiting_ok = False
+            if reply.kind not in (ReplyKind.RESEND, ReplyKind.SKIP):
+                self._recovery.release_held_ok()
         self._HANDLERS.get(reply.kind, MarlinProtocol._on_information)(self, reply)
         self._previous = reply
 
@@ -367,7 +380,8 @@ class MarlinProtocol:
             self._events.append(reply.event)
 
     def _on_resend_error(self, reply: Reply) -> None:
-        """Error lines of the resend flow mean nothing until their Resend comes."""
+        """Error lines of the resend flow wait for their Resend (R1b, R8)."""
+        self._recovery.line_error()
 
     _HANDLERS: ClassVar[dict[ReplyKind, Callable[[MarlinProtocol, Reply], None]]] = {
         ReplyKind.OK: _on_ok,

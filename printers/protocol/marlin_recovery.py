@@ -26,6 +26,9 @@ _RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
 #: Resend lines were both lost to line noise) make the firmware ask for a line
 #: the host counts as acknowledged, one line per such ok.
 RESET_GAP = 16
+#: R8: how long after a line error its Resend (or, R1b, the Resend after its ok)
+#: may take before the host acts without it, on top of two round trips.
+ERROR_WAIT = 0.05
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -67,16 +70,43 @@ class Recovery:
         self._dup_budget = self._repeats = self._consecutive_timeouts = 0
         self._after_timeout = self._busy_seen = False
         self._last_progress = self._window.clock
+        #: R8: when the last line error came that no Resend has answered yet.
+        self._error_at: float | None = None
+        #: R1b: an ok that came right after a line error, held back (its number).
+        self._held_ok: tuple[int | None] | None = None
+        #: R7: a Resend for an acknowledged line, seen once, not yet believed.
+        self._suspect: int | None = None
+        #: Statistics: Resends ignored as line noise.
+        self.noise: int = getattr(self, "noise", 0)
 
     # -- replies ---------------------------------------------------------------------
 
     def ok(self, n: int | None) -> None:
-        """`ok` or `ok N<n>`: T3, R1, then acknowledge what it answers."""
+        """`ok` or `ok N<n>`: T3, R1, R1b, then acknowledge what it answers."""
         self.progress()
         self._consecutive_timeouts = 0
         if self.awaiting_ok:
             self.awaiting_ok = False
             return
+        if self._error_at is not None and self._held_ok is None:
+            self._held_ok = (n,)  # R1b: the error's own ok if a Resend follows
+            return
+        self._apply_ok(n)
+
+    def line_error(self) -> None:
+        """A line error (checksum, line number): its Resend should follow (R8)."""
+        self.release_held_ok()
+        self._error_at = self._window.clock
+
+    def release_held_ok(self) -> None:
+        """R1b: no Resend followed the held ok: it answers a live line after all."""
+        held, self._held_ok = self._held_ok, None
+        if held is not None:
+            self._apply_ok(held[0])
+
+    def _apply_ok(self, n: int | None) -> None:
+        if self._window.live:
+            self._error_at = None  # a line got through since the error
         live = self._window.live
         if live and (n is None or not self._ack_through(n)):
             if not self._is_stale(n):
@@ -87,8 +117,11 @@ class Recovery:
     def resend(self, reply: Reply, previous: Reply | None) -> None:
         """`Resend: n` / `rs n` (F3, R2-R6); *previous* is the line before it."""
         self.progress()
-        self.awaiting_ok = True
+        ok_came_first = self._held_ok is not None
+        self._held_ok = self._error_at = None
+        self.awaiting_ok = not ok_came_first  # R1, R1b
         window, n = self._window, reply.number
+        window.hold(self.rtt)
         if window.need_m110 or n is None:
             return  # nothing numbered since the last reset: not ours
         if window.m110_next():
@@ -99,7 +132,13 @@ class Recovery:
         if m110 is not None:  # F3: about the M110 itself, whatever number it names
             self._genuine_resend(m110, _context(reply, previous))
             return
-        if self._is_reset(n):
+        if self._is_noise(n, previous):
+            self.noise += 1
+            return
+        behind = self._behind(n, previous)
+        if behind == "ignore":
+            return
+        if behind == "reset":
             oldest = window.oldest_unacked()
             self._reset_seen(f"{reply.text} after line {oldest - 1} was acknowledged")
             self.awaiting_ok = True  # R1 still holds for the ok that follows
@@ -114,20 +153,38 @@ class Recovery:
         if n == window.next_n:
             self._n, self._repeats = n, 0
             return
-        elif not window.history.first <= n < window.next_n:
-            self._fail(
-                f"cannot resend line {n}: only lines {window.history.first} to "
-                f"{window.next_n - 1} were sent since the last M110 ({reply.text!r})"
-            )
-            return
         self._genuine_resend(n, _context(reply, previous))
 
-    def _is_reset(self, n: int) -> bool:
-        """R7: a Resend for an acknowledged line, line 1 or far back, is a reset."""
-        oldest = self._window.oldest_unacked()
-        if n >= oldest:
-            return False
-        return n == self._window.history.first + 1 or oldest - n > RESET_GAP
+    def _is_noise(self, n: int, previous: Reply | None) -> bool:
+        """R9: a Resend that cannot be right is line noise, ignored.
+
+        It names a line never sent, or contradicts the line error just before it
+        (`Last Line: k` asks for k+1): one of the two lines was garbled.
+        """
+        if n > self._window.next_n:
+            return True
+        last = previous.number if previous and previous.kind in _RESEND_ERRORS else None
+        return last is not None and n != last + 1
+
+    def _behind(self, n: int, previous: Reply | None) -> str | None:
+        """R7: "reset" for an acknowledged line 1 or one far back, or "ignore".
+
+        Believed when the line error before it agrees, or when it comes twice in
+        a row; else it is remembered and ignored. A small step back (an error's
+        ok taken for a line's) is served: the firmware checks the sequence.
+        """
+        window = self._window
+        oldest = window.oldest_unacked()
+        first = window.history.first
+        if n >= oldest or (first + 1 < n and oldest - n <= RESET_GAP):
+            self._suspect = None
+            return None
+        agreed = previous is not None and previous.kind in _RESEND_ERRORS
+        if agreed or self._suspect == n:
+            return "reset"
+        self._suspect = n
+        self.noise += 1
+        return "ignore"
 
     def _is_duplicate(self, n: int, previous: Reply | None) -> bool:
         kind = previous.kind if previous else None
@@ -138,14 +195,20 @@ class Recovery:
         )
 
     def skip(self, n: int | None) -> None:
-        """Repetier's `skip n`: a duplicate (R3), or after a timeout R6."""
+        """Repetier's `skip n`: a duplicate (R3), after a timeout R6, else R8.
+
+        A skip nobody expects answers a line whose number noise turned into an
+        old one: like a line error without Resend, the oldest live line goes again.
+        """
         self.progress()
-        self.awaiting_ok = True
         if self._after_timeout and n is not None:
             self._ack_received(n + 1)
             self._after_timeout = False
         elif self._dup_budget > 0:
             self._dup_budget -= 1
+        else:
+            self.line_error()
+        self.awaiting_ok = True
 
     def wait(self, *, printing: bool) -> None:
         """`wait` (T2)."""
@@ -233,10 +296,14 @@ class Recovery:
         self.resends += 1
         self._rewind(n, message)
 
-    def _rewind(self, n: int, message: str) -> None:
+    def _rewind(self, n: int, message: str, *, timed_out: bool = False) -> None:
         """R2: lines >= n die and go again from the history, after a drain delay."""
         self._ack_unsent_before(n)
+        asked = any(line.number == n for line in self._window.live) and not timed_out
         died = self._window.rewind(n, self.rtt)
+        # Line n itself brought the request being served: only lines behind it
+        # can bring leftovers (a budget too high would ignore a genuine request).
+        died -= asked
         self._dup_budget = died + (self._dup_budget if n == self._n else 0)
         self._n = n
         self._events.append(ResendServed(n, message))
@@ -246,6 +313,22 @@ class Recovery:
         self._dup_budget = self._repeats = 0
 
     # -- timeouts --------------------------------------------------------------------
+
+    def error_deadline(self) -> float | None:
+        """R1b, R8: when a line error's Resend is overdue."""
+        if self._error_at is None:
+            return None
+        return self._error_at + ERROR_WAIT + 2 * self.rtt
+
+    def error_timeout(self, *, printing: bool) -> None:
+        """R8: no Resend came: the held ok is a line's; re-send from the oldest."""
+        self.release_held_ok()
+        if self._error_at is None:
+            return  # the held ok acknowledged a line: the error was about junk
+        self._error_at = None
+        live = self._window.live
+        if live and live[0].number is not None and live[0].sent_at is not None:
+            self.timeout(printing=printing, counted=False)
 
     def deadline(self) -> float | None:
         """T1: when the oldest live line is overdue; None with nothing written."""
@@ -274,7 +357,9 @@ class Recovery:
             if oldest.number != self._n:
                 self._repeats = 0
             self._rewind(
-                oldest.number, f"no answer to line {oldest.number} in {waited:.1f} s"
+                oldest.number,
+                f"no answer to line {oldest.number} in {waited:.1f} s",
+                timed_out=True,
             )
             self._after_timeout = True
         elif not printing:

@@ -93,7 +93,6 @@ _OK_NUMBER = re.compile(r"N?(-?\d+)$")
 _ADVANCED_OK = re.compile(r"(?:N(-?\d+)\s+)?P(\d+)\s+B(\d+)")
 _RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)", re.IGNORECASE)
 _SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)", re.IGNORECASE)
-_LAST_LINE = re.compile(r"(?:last line|expected line)\s*:?\s*(-?\d+)", re.IGNORECASE)
 _TEMPERATURE = re.compile(
     r"(?:^|\s)(T\d*|B|C|P|L)\s*:\s*(-?\d+(?:\.\d*)?)(?:\s*/\s*(-?\d+(?:\.\d*)?))?"
 )
@@ -103,13 +102,31 @@ _JUNK = re.compile(r"[^\x20-\x7e]")
 _INFO_KEY = re.compile(r"(?:^|\s)([A-Z][A-Z0-9_]{2,}):")
 _CAPABILITY = re.compile(r"Cap:([A-Za-z0-9_]+):\s*([01])$")
 
-_LINE_NUMBER_ERRORS = ("line number is not last line number+1", "expected line")
+# Line errors in each firmware's wording (wording facts, from their sources):
+# Marlin/Prusa `Line Number is not Last Line Number+1, Last Line: <n>`, `checksum
+# mismatch, Last Line: <n>`, `No Checksum with line number, Last Line: <n>`,
+# Prusa/Marlin 1.x `No Line Number with checksum, Last Line: <n>`; Repetier
+# `expected line <n+1> got <m>`, `Wrong checksum`, `Missing checksum`, `Format
+# error`. Smoothieware prints none (only `rs N<n+1>`); RepRapFirmware none at all.
+_LINE_NUMBER_ERRORS = (
+    "line number is not last line number",
+    "expected line",
+    "line number is not",
+)
 _CHECKSUM_ERRORS = (
     "checksum mismatch",
     "no checksum with line number",
     "no line number with checksum",
+    "wrong checksum",
+    "missing checksum",
     "format error",
+    "checksum",
+    "last line",
+    "line number",
 )
+#: Repetier names the line it wants, the others the last one they have.
+_EXPECTED_LINE = re.compile(r"expected line\s*:?\s*(-?\d+)", re.IGNORECASE)
+_LAST_LINE_ONLY = re.compile(r"last line\s*:?\s*(-?\d+)", re.IGNORECASE)
 _HALTS = (
     "printer halted",
     "kill() called",
@@ -210,12 +227,23 @@ def _parse_error(text: str, message: str) -> Reply:
         resend_kind = ReplyKind.LINE_NUMBER_ERROR
     elif any(marker in lower for marker in _CHECKSUM_ERRORS):
         resend_kind = ReplyKind.CHECKSUM_ERROR
+    elif _JUNK.search(message):
+        # A garbled line error (line noise on the way back): it cannot be read,
+        # so it is a resend-flow error of unknown line, never a fatal one.
+        return Reply(ReplyKind.CHECKSUM_ERROR, _IMPORTANT, text)
     if resend_kind is not None:
-        match = _LAST_LINE.search(message)
-        number = int(match[1]) if match else None
-        return Reply(resend_kind, _IMPORTANT, text, number=number)
+        return Reply(resend_kind, _IMPORTANT, text, number=_last_line(message))
     event = FirmwareError(message or text)
     return Reply(ReplyKind.ERROR, _IMPORTANT, text, event=event)
+
+
+def _last_line(message: str) -> int | None:
+    """The last line the firmware has, from `Last Line: n` or `expected line n+1`."""
+    if match := _EXPECTED_LINE.search(message):
+        return int(match[1]) - 1
+    if match := _LAST_LINE_ONLY.search(message):
+        return int(match[1])
+    return None
 
 
 def _halt(text: str, message: str) -> Reply:

@@ -164,6 +164,11 @@ class LineWindow:
             self.bytes_in_flight + line.cost <= self._rx_buffer
         )
 
+    def hold(self, rtt: float) -> None:
+        """R1: write nothing for a drain delay (the ok of a Resend comes first)."""
+        drain = self._rx_buffer * 10 / self._baud + rtt
+        self.drain_until = max(self.drain_until or 0.0, self.clock + drain)
+
     def oldest_unacked(self) -> int:
         """The number of the oldest numbered line not acknowledged yet (R7)."""
         oldest = self.rewind_next if self.rewinding else self.next_n

@@ -32,8 +32,11 @@ class Dialect:
     )
     checksum: str | None = "Error:checksum mismatch, Last Line: {last}"
     no_checksum: str | None = "Error:No Checksum with line number, Last Line: {last}"
-    #: A `*` on a line without `N` (None: the line runs unchecked, as in Marlin).
+    #: A `*` on a line without `N`: an Error line alone, no Resend, no ok (Prusa,
+    #: Marlin 1.x). None: the line runs unchecked, as in Marlin 2.
     no_line_number: str | None = None
+    #: False: the no_line_number error comes alone (no Resend, no ok).
+    resend_no_line_number: bool = True
     resend: str = "Resend: {next}"
     #: Where the ok of a rejected line goes: "after" the Resend, "before" it (a
     #: fault switch: some builds do), or "none" (no ok at all).
@@ -51,6 +54,8 @@ class Dialect:
         """The lines printed for a rejected line (error, Resend and ok in order)."""
         if message is None:
             return []
+        if message == self.no_line_number and not self.resend_no_line_number:
+            return [message.format(last=last)]
         lines = [message.format(last=last, next=last + 1, got=got)] if message else []
         resend = self.resend.format(next=last + 1)
         if ok_order == "before":
@@ -61,10 +66,17 @@ class Dialect:
 
 
 DIALECTS: dict[str, Dialect] = {
-    "marlin": Dialect("marlin"),
+    # Like Prusa and Marlin 1.x, our Marlin refuses a `*` without `N` (the tail of
+    # a line split by noise) instead of running it unchecked.
+    "marlin": Dialect(
+        "marlin",
+        no_line_number="Error:No Line Number with checksum, Last Line: {last}",
+        resend_no_line_number=False,
+    ),
     "prusa": Dialect(
         "prusa",
         no_line_number="Error:No Line Number with checksum, Last Line: {last}",
+        resend_no_line_number=False,
     ),
     "repetier": Dialect(
         "repetier",

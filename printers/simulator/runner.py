@@ -280,7 +280,8 @@ class Simulator:
         if data is None:  # the TCP client hung up
             self._drop_tcp_client()
         elif data:
-            data = self.faults.garble(data, self.faults.config.noise_to_firmware)
+            share = self.faults.config.noise_to_firmware
+            data = self.faults.garble(data, share, one_per_line=True)
             self.to_firmware.put(data, now)
 
     def _update_interest(self) -> None:

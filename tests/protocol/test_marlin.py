@@ -422,7 +422,8 @@ def test_r7_resend_far_back_in_the_job_is_a_reset_not_a_replay() -> None:
     run(proto, firmware, job)
     proto.send("G1 X300", 5.0, tag="last")
     proto.data_to_send()
-    proto.receive_data(b"Resend: 3\nok\n", 5.1)  # lines 1..300 were acknowledged
+    error = LINE_ERROR.format(2).encode()  # lines 1..300 were acknowledged
+    proto.receive_data(error + b"\nResend: 3\nok\n", 5.1)
     assert meaning(proto) == [
         FirmwareReset("Resend: 3 after line 300 was acknowledged")
     ]
@@ -448,12 +449,19 @@ def test_resend_limit_fails_the_link() -> None:
     assert proto.in_flight == 0
 
 
-def test_resend_for_a_line_never_sent_fails_the_link() -> None:
+def test_r9_resend_for_a_line_never_sent_is_noise() -> None:
     proto = _streaming(lines=2)
-    proto.receive_data(b"Resend: 9\nok\n", 1.0)
-    failed = [e for e in events(proto) if isinstance(e, LinkFailed)]
-    assert len(failed) == 1
-    assert "cannot resend line 9" in failed[0].message
+    proto.receive_data(b"Resend: 9\nok\n", 1.0)  # "Resend: 1" with a digit garbled
+    assert meaning(proto) == []
+    proto.handle_timeout(proto.next_deadline() or 1.1)
+    assert proto.data_to_send() == b""  # nothing re-sent, its ok swallowed
+    assert proto.in_flight == 2
+
+
+def test_r9_resend_contradicting_its_error_line_is_noise() -> None:
+    proto = _streaming(lines=2)
+    proto.receive_data(f"{CHECKSUM_ERROR.format(0)}\nResend: 2\nok\n".encode(), 1.0)
+    assert not any(isinstance(e, ResendServed) for e in events(proto))
 
 
 def test_resend_for_the_next_line_is_nothing_to_do() -> None:

@@ -49,7 +49,28 @@ CLASSIFIED = [
         IMPORTANT,
         41,
     ),
-    ("Error:expected line 42 got 44", ReplyKind.LINE_NUMBER_ERROR, IMPORTANT, 42),
+    # Repetier names the line it wants: its last good line is one before.
+    ("Error:expected line 42 got 44", ReplyKind.LINE_NUMBER_ERROR, IMPORTANT, 41),
+    ("Error:Wrong checksum", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:Missing checksum", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:Format error", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    (
+        "Error:No Line Number with checksum, Last Line: 7",
+        ReplyKind.CHECKSUM_ERROR,
+        IMPORTANT,
+        7,
+    ),
+    # Garbled by line noise on the way back: still a line error, never fatal.
+    ("Error:checksum mizmatch, Last Line: 7", ReplyKind.CHECKSUM_ERROR, IMPORTANT, 7),
+    (
+        "Error:Line Numbxr is not Last Line Number+1, Last Line: 3",
+        ReplyKind.CHECKSUM_ERROR,
+        IMPORTANT,
+        3,
+    ),
+    ("Error:chec\ufffdsum mismatch", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("rs N12", ReplyKind.RESEND, IMPORTANT, 12),
+    ("Resend:12", ReplyKind.RESEND, IMPORTANT, 12),
     (
         "Error:checksum mismatch, Last Line: 41",
         ReplyKind.CHECKSUM_ERROR,
