@@ -104,8 +104,9 @@ from printers.protocol.events import (
     LinkFailed,
     Received,
     Sent,
+    TemperatureReport,
 )
-from printers.protocol.marlin_recovery import Recovery
+from printers.protocol.marlin_recovery import PROBE_AFTER, Recovery
 from printers.protocol.marlin_responses import Reply, ReplyKind, parse_response
 from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
 
@@ -142,6 +143,7 @@ class MarlinProtocol:
         busy_timeout: float = 30.0,
         max_resends: int = 10,
         max_timeouts: int = 5,
+        probe_after: float | None = PROBE_AFTER,
         baud: int = 115200,
     ) -> None:
         if checksums not in _CHECKSUM_MODES or flow not in _FLOW_MODES:
@@ -177,6 +179,7 @@ class MarlinProtocol:
             max_timeouts=max_timeouts,
             ack_timeout=ack_timeout,
             busy_timeout=busy_timeout,
+            probe_after=probe_after,
         )
 
     # -- read-only state -------------------------------------------------------------
@@ -209,6 +212,11 @@ class MarlinProtocol:
     def resends(self) -> int:
         """Statistics: genuine resend requests served."""
         return self._recovery.resends
+
+    @property
+    def probes(self) -> int:
+        """Statistics: numbered M105 probes sent for late oks (T6)."""
+        return self._recovery.probes
 
     @property
     def timeouts(self) -> int:
@@ -290,6 +298,7 @@ class MarlinProtocol:
             self._window.drain_until,
             recovery.deadline(),
             recovery.error_deadline(),
+            recovery.probe_deadline(),
         )
         deadlines = [d for d in candidates if d is not None]
         return min(deadlines) if deadlines else None
@@ -304,6 +313,9 @@ class MarlinProtocol:
         deadline = recovery.deadline()
         if deadline is not None and now >= deadline:
             recovery.timeout(printing=self.printing)
+        probe = recovery.probe_deadline()
+        if probe is not None and now >= probe:
+            recovery.probe()
         self._pump()
 
     def abandon(self) -> None:
@@ -348,7 +360,8 @@ class MarlinProtocol:
             self._events.append(reply.event)
         if reply.buffer_free is not None and not self._recovery.awaiting_ok:
             self._max_b = max(self._max_b, reply.buffer_free)
-        self._recovery.ok(reply.number)
+        temperatures = isinstance(reply.event, TemperatureReport)
+        self._recovery.ok(reply.number, temperatures=temperatures)
 
     def _on_resend(self, reply: Reply) -> None:
         self._recovery.resend(reply, self._previous)
@@ -375,6 +388,13 @@ class MarlinProtocol:
         self._on_information(reply)
         self.abandon()
 
+    def _on_firmware_info(self, reply: Reply) -> None:
+        # T6: RepRapFirmware does not check the line sequence, so a probe could
+        # not tell a lost line from a lost ok there.
+        if "reprapfirmware" in reply.text.lower().replace(" ", ""):
+            self._recovery.probing = False
+        self._on_information(reply)
+
     def _on_information(self, reply: Reply) -> None:
         if reply.event is not None:
             self._events.append(reply.event)
@@ -390,6 +410,7 @@ class MarlinProtocol:
         ReplyKind.WAIT: _on_wait,
         ReplyKind.BUSY: _on_busy,
         ReplyKind.TEMPERATURE: _on_temperature,
+        ReplyKind.FIRMWARE_INFO: _on_firmware_info,
         ReplyKind.START: _on_start,
         ReplyKind.HALT: _on_halt,
         ReplyKind.LINE_NUMBER_ERROR: _on_resend_error,

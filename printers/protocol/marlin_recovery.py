@@ -29,6 +29,10 @@ RESET_GAP = 16
 #: R8: how long after a line error its Resend (or, R1b, the Resend after its ok)
 #: may take before the host acts without it, on top of two round trips.
 ERROR_WAIT = 0.05
+#: T6: a line whose ok is this late (plus four round trips) gets a probe.
+PROBE_AFTER = 0.5
+#: T6: the probe, a numbered no-op whose ok carries temperatures (T5).
+PROBE = "M105"
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -51,11 +55,13 @@ class Recovery:
         max_timeouts: int,
         ack_timeout: float,
         busy_timeout: float,
+        probe_after: float | None = PROBE_AFTER,
     ) -> None:
         self._window, self._events, self._fail = window, events, fail
         self._reset_seen = reset
         self._max_resends, self._max_timeouts = max_resends, max_timeouts
         self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
+        self._probe_after = probe_after
         #: Statistics: genuine resend requests served, ack timeouts.
         self.resends = self.timeouts = 0
         #: Round trip send -> ok (EWMA); sizes the drain delay and T2.
@@ -76,15 +82,24 @@ class Recovery:
         self._held_ok: tuple[int | None] | None = None
         #: R7: a Resend for an acknowledged line, seen once, not yet believed.
         self._suspect: int | None = None
+        #: T6: when the last probe went out.
+        self._probed_at: float | None = None
+        #: T6: probing needs a firmware that checks the line sequence.
+        self.probing: bool = getattr(self, "probing", True)
+        #: Statistics: probes sent.
+        self.probes: int = getattr(self, "probes", 0)
         #: Statistics: Resends ignored as line noise.
         self.noise: int = getattr(self, "noise", 0)
 
     # -- replies ---------------------------------------------------------------------
 
-    def ok(self, n: int | None) -> None:
-        """`ok` or `ok N<n>`: T3, R1, R1b, then acknowledge what it answers."""
+    def ok(self, n: int | None, *, temperatures: bool = False) -> None:
+        """`ok` or `ok N<n>`: T3, R1, R1b, T5, then acknowledge what it answers."""
         self.progress()
         self._consecutive_timeouts = 0
+        settled = not self.awaiting_ok and self._held_ok is None
+        if temperatures and settled and self._ack_through_probe():
+            return
         if self.awaiting_ok:
             self.awaiting_ok = False
             return
@@ -92,6 +107,19 @@ class Recovery:
             self._held_ok = (n,)  # R1b: the error's own ok if a Resend follows
             return
         self._apply_ok(n)
+
+    def _ack_through_probe(self) -> bool:
+        """T5: `ok T:..` answers the oldest live M105: the lines before it ran."""
+        live = self._window.live
+        for index, line in enumerate(live):
+            if not line.numbered or line.number is None:
+                return False
+            if line.word == PROBE and line.text.upper() == PROBE:
+                for _ in range(index + 1):
+                    self._acknowledge(live.popleft())
+                self._error_at = None
+                return True
+        return False
 
     def line_error(self) -> None:
         """A line error (checksum, line number): its Resend should follow (R8)."""
@@ -313,6 +341,33 @@ class Recovery:
         self._dup_budget = self._repeats = 0
 
     # -- timeouts --------------------------------------------------------------------
+
+    def probe_deadline(self) -> float | None:
+        """T6: when the oldest live line's ok is late enough to send a probe."""
+        window = self._window
+        live = window.live
+        after = self._probe_after
+        if after is None or not self.probing or not live or self._busy_seen:
+            return None
+        oldest = live[0]
+        if (
+            oldest.sent_at is None
+            or oldest.number is None
+            or oldest.m110 is not None
+            or oldest.word in _LONG_RUNNING
+            or any(line.text.upper() == PROBE for line in live)
+            or window.queued
+            or window.rewinding
+        ):
+            return None
+        base = max(self._last_progress, oldest.sent_at, self._probed_at or 0.0)
+        return base + after + 4 * self.rtt
+
+    def probe(self) -> None:
+        """T6: send a numbered M105; its ok (T5) or its Resend settles the late line."""
+        self._probed_at = self._window.clock
+        self.probes += 1
+        self._window.add_probe(PROBE)
 
     def error_deadline(self) -> float | None:
         """R1b, R8: when a line error's Resend is overdue."""

@@ -164,6 +164,14 @@ class LineWindow:
             self.bytes_in_flight + line.cost <= self._rx_buffer
         )
 
+    def add_probe(self, text: str) -> None:
+        """T6: a numbered internal line straight to the wire, beyond the window."""
+        line = Line(text, None, internal=True, numbered=True)
+        self.frame(line)
+        self._number(line)
+        self.live.append(line)
+        self.outbox.append(line)
+
     def hold(self, rtt: float) -> None:
         """R1: write nothing for a drain delay (the ok of a Resend comes first)."""
         drain = self._rx_buffer * 10 / self._baud + rtt

@@ -527,7 +527,7 @@ def test_the_second_ok_of_a_repeated_m110_is_not_taken_for_the_next_line() -> No
 
 
 def test_ack_timeout_retransmits_then_fails_the_link() -> None:
-    proto = _streaming(lines=1, ack_timeout=5.0, max_timeouts=2)
+    proto = _streaming(lines=1, ack_timeout=5.0, max_timeouts=2, probe_after=None)
     now = 0.0
     for _ in range(2):
         deadline = proto.next_deadline()
@@ -586,7 +586,7 @@ def test_temperatures_are_progress_only_during_a_long_command() -> None:
     proto = _streaming(lines=1, ack_timeout=2.0, command="M109 S210")
     proto.receive_data(b"T:180.1 E:0 W:?\n", 1.5)
     assert proto.next_deadline() == 3.5
-    proto = _streaming(lines=1, ack_timeout=2.0, command="G1 X1")
+    proto = _streaming(lines=1, ack_timeout=2.0, command="G1 X1", probe_after=None)
     proto.receive_data(b"T:180.1 /0.0 B:20.0 /0.0\n", 1.5)
     assert proto.next_deadline() == 2.0
 
