@@ -82,6 +82,8 @@ class Recovery:
         self._held_ok: tuple[int | None] | None = None
         #: R7: a Resend for an acknowledged line, seen once, not yet believed.
         self._suspect: int | None = None
+        #: R7: this firmware prints its line errors (not only Resend/rs).
+        self._worded_errors: bool = getattr(self, "_worded_errors", False)
         #: T6: when the last probe went out.
         self._probed_at: float | None = None
         #: T6: probing needs a firmware that checks the line sequence.
@@ -123,6 +125,7 @@ class Recovery:
 
     def line_error(self) -> None:
         """A line error (checksum, line number): its Resend should follow (R8)."""
+        self._worded_errors = True
         self.release_held_ok()
         self._error_at = self._window.clock
 
@@ -197,9 +200,11 @@ class Recovery:
     def _behind(self, n: int, previous: Reply | None) -> str | None:
         """R7: "reset" for an acknowledged line 1 or one far back, or "ignore".
 
-        Believed when the line error before it agrees, or when it comes twice in
-        a row; else it is remembered and ignored. A small step back (an error's
-        ok taken for a line's) is served: the firmware checks the sequence.
+        Believed only when the same request comes twice in a row (and, from a
+        firmware that words its line errors, with the error line agreeing each
+        time): line noise can garble one number, hardly the same way twice. A
+        small step back (an error's ok taken for a line's) is served: the
+        firmware checks the sequence.
         """
         window = self._window
         oldest = window.oldest_unacked()
@@ -207,11 +212,17 @@ class Recovery:
         if n >= oldest or (first + 1 < n and oldest - n <= RESET_GAP):
             self._suspect = None
             return None
-        agreed = previous is not None and previous.kind in _RESEND_ERRORS
-        if agreed or self._suspect == n:
+        agreed = (
+            previous is not None
+            and previous.kind in _RESEND_ERRORS
+            and previous.number == n - 1
+        )
+        self.noise += 1
+        if self._worded_errors and not agreed:
+            return "ignore"
+        if self._suspect == n:
             return "reset"
         self._suspect = n
-        self.noise += 1
         return "ignore"
 
     def _is_duplicate(self, n: int, previous: Reply | None) -> bool:

@@ -91,8 +91,10 @@ _WAIT = Reply(ReplyKind.WAIT, _ACK, "wait")
 
 _OK_NUMBER = re.compile(r"N?(-?\d+)$")
 _ADVANCED_OK = re.compile(r"(?:N(-?\d+)\s+)?P(\d+)\s+B(\d+)")
-_RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)", re.IGNORECASE)
-_SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)", re.IGNORECASE)
+# Whole-line matches: a Resend with anything garbled around its number is not
+# believed (R9); it counts as a lost Resend (R8).
+_RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)\s*$", re.IGNORECASE)
+_SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)\s*$", re.IGNORECASE)
 _TEMPERATURE = re.compile(
     r"(?:^|\s)(T\d*|B|C|P|L)\s*:\s*(-?\d+(?:\.\d*)?)(?:\s*/\s*(-?\d+(?:\.\d*)?))?"
 )
@@ -125,8 +127,8 @@ _CHECKSUM_ERRORS = (
     "line number",
 )
 #: Repetier names the line it wants, the others the last one they have.
-_EXPECTED_LINE = re.compile(r"expected line\s*:?\s*(-?\d+)", re.IGNORECASE)
-_LAST_LINE_ONLY = re.compile(r"last line\s*:?\s*(-?\d+)", re.IGNORECASE)
+_EXPECTED_LINE = re.compile(r"expected line\s*:?\s*(-?\d+)(?:\s+got\b|\s*$)", re.I)
+_LAST_LINE_ONLY = re.compile(r"last line\s*:?\s*(-?\d+)\s*$", re.IGNORECASE)
 _HALTS = (
     "printer halted",
     "kill() called",

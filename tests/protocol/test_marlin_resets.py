@@ -6,7 +6,15 @@ import pytest
 
 from printers.protocol.events import Ack, FirmwareReset, ResendServed, Sent
 from printers.protocol.marlin import MarlinProtocol
-from tests.protocol.test_marlin import JOB, TinyMarlin, events, meaning, run
+from printers.protocol.checksum import format_line
+from tests.protocol.test_marlin import (
+    CHECKSUM_ERROR,
+    JOB,
+    TinyMarlin,
+    events,
+    meaning,
+    run,
+)
 
 
 def streamed(flow: str) -> tuple[MarlinProtocol, TinyMarlin]:
@@ -21,11 +29,32 @@ def test_r7_resend_for_line_one_mid_job_is_a_reset(flow: str) -> None:
     firmware.last_n = 0  # it reset and printed nothing
     proto.send("G1 X99", 1.0, tag="next")
     proto.receive_data(firmware(proto.data_to_send()), 1.1)
+    assert meaning(proto) == []  # once could be line noise: ignored, not served
+    assert proto.data_to_send() == b""
+    data = b""
+    for _ in range(3):  # the hold after the Resend, then T6: a probe goes out
+        proto.handle_timeout(proto.next_deadline() or 2.0)
+        data = proto.data_to_send()
+        if data:
+            break
+    assert data.startswith(b"N32 M105*")
+    proto.receive_data(firmware(format_line(32, "M105").encode() + b"\n"), 2.1)
     log = events(proto)
     assert FirmwareReset("Resend: 1 after line 30 was acknowledged") in log
     assert not any(isinstance(e, ResendServed | Ack) for e in log)
     assert proto.data_to_send() == b""  # nothing replayed
     assert proto.in_flight == 0
+
+
+def test_r7_one_garbled_request_far_back_is_ignored() -> None:
+    proto, firmware = streamed("ping_pong")
+    proto.send("G1 X99", 1.0, tag="next")
+    proto.data_to_send()
+    # "Last Line: 30 / Resend: 31" with a digit lost in both lines
+    proto.receive_data(b"Error:checksum mismatch, Last Line: 3\nResend: 4\nok\n", 1.1)
+    assert meaning(proto) == []
+    proto.receive_data(f"{CHECKSUM_ERROR.format(30)}\nResend: 31\nok\n".encode(), 1.2)
+    assert [type(e) for e in meaning(proto)] == [ResendServed]
 
 
 def test_r7_leftover_resends_after_the_reset_are_ignored() -> None:
