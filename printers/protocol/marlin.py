@@ -107,7 +107,12 @@ from printers.protocol.events import (
     TemperatureReport,
 )
 from printers.protocol.marlin_recovery import PROBE_AFTER, Recovery
-from printers.protocol.marlin_responses import Reply, ReplyKind, parse_response
+from printers.protocol.marlin_responses import (
+    Reply,
+    ReplyKind,
+    parse_response,
+    split_merged,
+)
 from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
 
 if TYPE_CHECKING:
@@ -272,8 +277,10 @@ class MarlinProtocol:
                 lines.append(self._rx)
                 self._rx = b""
             for raw in lines:
-                if raw.strip():
-                    self._handle_line(raw)
+                # Undecodable bytes become U+FFFD: junk that only `start` may follow.
+                text = raw.decode("utf-8", errors="replace").strip()
+                for part in split_merged(text) if text else ():
+                    self._handle_line(part)
         self._pump()
 
     def next_event(self) -> Event | None:
@@ -343,9 +350,8 @@ class MarlinProtocol:
 
     # -- replies ---------------------------------------------------------------------
 
-    def _handle_line(self, raw: bytes) -> None:
-        # Undecodable bytes become U+FFFD: junk that only `start` may follow.
-        reply = parse_response(raw.decode("utf-8", errors="replace").strip())
+    def _handle_line(self, text: str) -> None:
+        reply = parse_response(text)
         self._events.append(Received(reply.text, reply.line_kind))
         if reply.kind is not ReplyKind.OK:
             self._recovery.awaiting_ok = False

@@ -20,7 +20,13 @@ from printers.protocol.events import (
     TemperatureReport,
 )
 
-__all__ = ["Reply", "ReplyKind", "parse_response", "parse_temperatures"]
+__all__ = [
+    "Reply",
+    "ReplyKind",
+    "parse_response",
+    "parse_temperatures",
+    "split_merged",
+]
 
 
 class ReplyKind(enum.Enum):
@@ -142,6 +148,32 @@ _HALTS = (
     "kill caused",
     "watchdog barked",
 )
+
+
+#: Starts of replies that may follow an `ok` whose line end noise took away.
+_AFTER_OK = ("ok", "Resend", "rs ", "Error:", "echo:", "skip", "wait", "start", "T:")
+_TRAILING_OK = re.compile(r"\dok$")
+_MID_RESEND = re.compile(r"(?<=\d)(?=Resend:|rs N)")
+
+
+def split_merged(line: str) -> list[str]:
+    """Lines that lost the line end between them, apart again (line noise).
+
+    Only unambiguous joins are split: `okok`, `okResend: 5`, `ok` glued after a
+    number (`Resend: 5ok`), and `Resend:` glued after a line error's number.
+    """
+    parts: list[str] = []
+    text = line.strip()
+    while text.startswith("ok") and text[2:].startswith(_AFTER_OK):
+        parts.append("ok")
+        text = text[2:]
+    pieces = _MID_RESEND.split(text) if text.startswith("Error:") else [text]
+    for piece in pieces:
+        if not piece.startswith("ok") and _TRAILING_OK.search(piece):
+            parts += [piece[:-2], "ok"]
+        else:
+            parts.append(piece)
+    return parts
 
 
 def parse_response(line: str) -> Reply:
