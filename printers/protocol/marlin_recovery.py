@@ -33,6 +33,7 @@ ERROR_WAIT = 0.05
 PROBE_AFTER = 0.5
 #: T6: the probe, a numbered no-op whose ok carries temperatures (T5).
 PROBE = "M105"
+_MAX_PROBES = 3
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -113,15 +114,18 @@ class Recovery:
     def _ack_through_probe(self) -> bool:
         """T5: `ok T:..` answers the oldest live M105: the lines before it ran."""
         live = self._window.live
+        newest = None
         for index, line in enumerate(live):
             if not line.numbered or line.number is None:
-                return False
-            if line.word == PROBE and line.text.upper() == PROBE:
-                for _ in range(index + 1):
-                    self._acknowledge(live.popleft())
-                self._error_at = None
-                return True
-        return False
+                break
+            if line.text.upper() == PROBE:
+                newest = index  # an older probe's ok was lost too: newest wins
+        if newest is None:
+            return False
+        for _ in range(newest + 1):
+            self._acknowledge(live.popleft())
+        self._error_at = None
+        return True
 
     def line_error(self) -> None:
         """A line error (checksum, line number): its Resend should follow (R8)."""
@@ -338,11 +342,12 @@ class Recovery:
     def _rewind(self, n: int, message: str, *, timed_out: bool = False) -> None:
         """R2: lines >= n die and go again from the history, after a drain delay."""
         self._ack_unsent_before(n)
-        asked = any(line.number == n for line in self._window.live) and not timed_out
         died = self._window.rewind(n, self.rtt)
-        # Line n itself brought the request being served: only lines behind it
-        # can bring leftovers (a budget too high would ignore a genuine request).
-        died -= asked
+        # The oldest dead line brought the request being served: only lines
+        # behind it can bring leftovers (a budget too high would ignore a
+        # genuine request; one too low only re-sends a line the firmware refuses).
+        if died and not timed_out:
+            died -= 1
         self._dup_budget = died + (self._dup_budget if n == self._n else 0)
         self._n = n
         self._events.append(ResendServed(n, message))
@@ -364,9 +369,8 @@ class Recovery:
         if (
             oldest.sent_at is None
             or oldest.number is None
-            or oldest.m110 is not None
             or oldest.word in _LONG_RUNNING
-            or any(line.text.upper() == PROBE for line in live)
+            or sum(line.text.upper() == PROBE for line in live) >= _MAX_PROBES
             or window.queued
             or window.rewinding
         ):
@@ -387,10 +391,12 @@ class Recovery:
         return self._error_at + ERROR_WAIT + 2 * self.rtt
 
     def error_timeout(self, *, printing: bool) -> None:
-        """R8: no Resend came: the held ok is a line's; re-send from the oldest."""
-        self.release_held_ok()
-        if self._error_at is None:
-            return  # the held ok acknowledged a line: the error was about junk
+        """R8: no Resend came: re-send from the oldest live line (R6 sorts it out).
+
+        A held ok is dropped, not applied: it may be the error's own (its Resend
+        lost); if it was a line's, the firmware's answer to the copy proves it.
+        """
+        self._held_ok = None
         self._error_at = None
         live = self._window.live
         if live and live[0].number is not None and live[0].sent_at is not None:
