@@ -372,7 +372,6 @@ class Recovery:
             or oldest.word in _LONG_RUNNING
             or sum(line.text.upper() == PROBE for line in live) >= _MAX_PROBES
             or window.queued
-            or window.rewinding
         ):
             return None
         base = max(self._last_progress, oldest.sent_at, self._probed_at or 0.0)
@@ -382,7 +381,10 @@ class Recovery:
         """T6: send a numbered M105; its ok (T5) or its Resend settles the late line."""
         self._probed_at = self._window.clock
         self.probes += 1
-        self._window.add_probe(PROBE)
+        if self._window.rewinding:
+            self._window.push_next()  # the next line to re-send asks the same
+        else:
+            self._window.add_probe(PROBE)
 
     def error_deadline(self) -> float | None:
         """R1b, R8: when a line error's Resend is overdue."""

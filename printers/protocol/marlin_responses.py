@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 import re
 from dataclasses import dataclass
+from difflib import SequenceMatcher
 
 from printers.protocol.events import (
     ActionCommand,
@@ -261,6 +262,8 @@ def _parse_error(text: str, message: str) -> Reply:
         resend_kind = ReplyKind.LINE_NUMBER_ERROR
     elif any(marker in lower for marker in _CHECKSUM_ERRORS):
         resend_kind = ReplyKind.CHECKSUM_ERROR
+    elif _looks_like_line_error(lower):
+        resend_kind = ReplyKind.CHECKSUM_ERROR
     elif _JUNK.search(message):
         # A garbled line error (line noise on the way back): it cannot be read,
         # so it is a resend-flow error of unknown line, never a fatal one.
@@ -269,6 +272,32 @@ def _parse_error(text: str, message: str) -> Reply:
         return Reply(resend_kind, _IMPORTANT, text, number=_last_line(message))
     event = FirmwareError(message or text)
     return Reply(ReplyKind.ERROR, _IMPORTANT, text, event=event)
+
+
+_WORDINGS = (
+    "line number is not last line number+1, last line:",
+    "checksum mismatch, last line:",
+    "no checksum with line number, last line:",
+    "no line number with checksum, last line:",
+    "expected line",
+    "wrong checksum",
+    "missing checksum",
+    "format error",
+)
+
+
+def _looks_like_line_error(lower: str) -> bool:
+    """A line error cut short or misspelt by line noise (`Error:ch`, `chexksum`)."""
+    words = lower.split(",")[0].strip()
+    if not words:
+        return False
+    for wording in _WORDINGS:
+        if wording.startswith(words):
+            return True
+        head = wording.split(",")[0]
+        if SequenceMatcher(None, words, head).ratio() >= 0.75:
+            return True
+    return False
 
 
 def _last_line(message: str) -> int | None:

@@ -172,6 +172,14 @@ class LineWindow:
         self.live.append(line)
         self.outbox.append(line)
 
+    def push_next(self) -> None:
+        """T6: the next line to re-send goes now, beyond the window (a probe)."""
+        line = self._peek()
+        if line is not None and line.resend:
+            self.rewind_next += 1
+            self.live.append(line)
+            self.outbox.append(line)
+
     def hold(self, rtt: float) -> None:
         """R1: write nothing for a drain delay (the ok of a Resend comes first)."""
         drain = self._rx_buffer * 10 / self._baud + rtt
