@@ -31,7 +31,7 @@
 #
 # Replies (each line emits Received(text, kind) before its meaning)
 #   reply                         | effect                              | events
-#   ok right after Resend/rs/skip | swallowed (it belongs to a bad line)| -
+#   ok after Resend/rs/skip       | swallowed (it belongs to a bad line)| -
 #   ok                            | acks the oldest live line (FIFO)    | Ack(tag)
 #   ok N<n> P<p> B<b> / ok <n>    | acks live lines up to n; FIFO if n  | Ack(tag)...
 #                                 | is unknown; P+B -> advanced_ok      |
@@ -50,7 +50,12 @@
 #
 # Resends (Marlin flushes its RX ring on a bad line; every line already behind it
 # then brings another Error + Resend for the same n, or nothing if it was flushed)
-#   R1  The ok right after Resend/rs/skip is swallowed; any other line ends the wait.
+#   R1  The first ok after Resend/rs/skip is swallowed. Nothing is written for a
+#       drain delay after a Resend (its ok comes first); writing a line after it
+#       ends the wait (Smoothieware's `rs` and some Marlin 2.0 builds send no ok).
+#   R1b A line error then ok (some firmware sends ok before Resend): the ok is held;
+#       a Resend next proves it was the error's (dropped, no ok awaited after the
+#       Resend); any other reply releases it as a line's ok.
 #   R2  A genuine request for n: live lines numbered >= n die, lines n.. go again
 #       from the history before anything new, dup_budget = lines that died (plus
 #       what was left if n was already the recovery's), dead bytes stay charged
@@ -353,10 +358,8 @@ class MarlinProtocol:
     def _handle_line(self, text: str) -> None:
         reply = parse_response(text)
         self._events.append(Received(reply.text, reply.line_kind))
-        if reply.kind is not ReplyKind.OK:
-            self._recovery.awaiting_ok = False
-            if reply.kind not in (ReplyKind.RESEND, ReplyKind.SKIP):
-                self._recovery.release_held_ok()
+        if reply.kind not in (ReplyKind.OK, ReplyKind.RESEND, ReplyKind.SKIP):
+            self._recovery.release_held_ok()
         self._HANDLERS.get(reply.kind, MarlinProtocol._on_information)(self, reply)
         self._previous = reply
 
@@ -407,7 +410,7 @@ class MarlinProtocol:
 
     def _on_resend_error(self, reply: Reply) -> None:
         """Error lines of the resend flow wait for their Resend (R1b, R8)."""
-        self._recovery.line_error()
+        self._recovery.line_error(reply.number)
 
     _HANDLERS: ClassVar[dict[ReplyKind, Callable[[MarlinProtocol, Reply], None]]] = {
         ReplyKind.OK: _on_ok,

@@ -79,6 +79,8 @@ class Recovery:
         self._last_progress = self._window.clock
         #: R8: when the last line error came that no Resend has answered yet.
         self._error_at: float | None = None
+        #: R8: the last good line the unanswered error named.
+        self._error_last: int | None = None
         #: R1b: an ok that came right after a line error, held back (its number).
         self._held_ok: tuple[int | None] | None = None
         #: R7: a Resend for an acknowledged line, seen once, not yet believed.
@@ -127,11 +129,15 @@ class Recovery:
         self._error_at = None
         return True
 
-    def line_error(self) -> None:
-        """A line error (checksum, line number): its Resend should follow (R8)."""
+    def line_error(self, last: int | None = None) -> None:
+        """A line error (checksum, line number): its Resend should follow (R8).
+
+        *last* is the firmware's last good line, as the error names it.
+        """
         self._worded_errors = True
         self.release_held_ok()
         self._error_at = self._window.clock
+        self._error_last = last
 
     def release_held_ok(self) -> None:
         """R1b: no Resend followed the held ok: it answers a live line after all."""
@@ -169,6 +175,8 @@ class Recovery:
             return
         if self._is_noise(n, previous):
             self.noise += 1
+            if previous is not None and previous.kind in _RESEND_ERRORS:
+                self._error_at = window.clock  # R8 still watches its error
             return
         behind = self._behind(n, previous)
         if behind == "ignore":
@@ -400,9 +408,22 @@ class Recovery:
         """
         self._held_ok = None
         self._error_at = None
-        live = self._window.live
+        window = self._window
+        live = window.live
         if live and live[0].number is not None and live[0].sent_at is not None:
             self.timeout(printing=printing, counted=False)
+            return
+        # Nothing live: an ok was taken for a line the error says is missing.
+        last = self._error_last
+        oldest = window.oldest_unacked()
+        if (
+            last is not None
+            and window.history.first < last + 1 < oldest
+            and oldest - (last + 1) <= RESET_GAP
+            and not window.rewinding
+        ):
+            self._rewind(last + 1, f"line error without Resend: line {last + 1}")
+            self._after_timeout = True
 
     def deadline(self) -> float | None:
         """T1: when the oldest live line is overdue; None with nothing written."""
