@@ -28,6 +28,8 @@
 #       seen, flow not "ping_pong"): lines < max(B)+1. Both windowed modes also keep
 #       sum(len(wire)+1) of live and dead lines <= rx_buffer.
 #   W3  With nothing live and nothing dead any one line may go (never deadlock).
+#   W4  While a re-sent line waits for its ok, it is the only live line from the
+#       requested one on: on a noisy line a whole window sent again is rarely whole.
 #
 # Replies (each line emits Received(text, kind) before its meaning)
 #   reply                         | effect                              | events
@@ -348,6 +350,8 @@ class MarlinProtocol:
         mode = self.flow_mode
         if mode == "ping_pong":
             return 1
+        if self._recovery.recovering:
+            return 1 + self._recovery.settled_live()  # W4
         return self._max_b + 1 if mode == "advanced" else self._bufsize
 
     def _pump(self) -> None:

@@ -96,6 +96,20 @@ class Recovery:
         #: Statistics: Resends ignored as line noise.
         self.noise: int = getattr(self, "noise", 0)
 
+    @property
+    def recovering(self) -> bool:
+        """W4: a line asked for again is not acknowledged yet."""
+        return self._n is not None
+
+    def settled_live(self) -> int:
+        """W4: live lines before the one asked for again (the firmware has them)."""
+        n = self._n
+        return sum(
+            1
+            for line in self._window.live
+            if n is not None and line.number is not None and line.number < n
+        )
+
     # -- replies ---------------------------------------------------------------------
 
     def ok(self, n: int | None, *, temperatures: bool = False) -> None:

@@ -69,6 +69,11 @@ CLASSIFIED = [
         3,
     ),
     ("Error:chec\ufffdsum mismatch", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:ch", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:Line Nu", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:Wrong chec4sum", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:Probing failed", ReplyKind.ERROR, IMPORTANT, None),
+    ("Error:Printer halted. kill() called!", ReplyKind.HALT, IMPORTANT, None),
     ("rs N12", ReplyKind.RESEND, IMPORTANT, 12),
     ("Resend:12", ReplyKind.RESEND, IMPORTANT, 12),
     (
