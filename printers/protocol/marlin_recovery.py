@@ -177,7 +177,10 @@ class Recovery:
         self.awaiting_ok = not ok_came_first  # R1, R1b
         window, n = self._window, reply.number
         window.hold(self.rtt)
-        if window.need_m110 or n is None:
+        if n is None:
+            self._error_at = window.clock  # R9: unreadable; R8 recovers
+            return
+        if window.need_m110:
             return  # nothing numbered since the last reset: not ours
         if window.m110_next():
             return  # F3: the M110 goes again anyway, this is a leftover

@@ -198,6 +198,8 @@ def parse_response(line: str) -> Reply:
         return Reply(ReplyKind.BUSY, _RESPONSE, text, event=Busy(message))
     if lower.startswith("error:"):
         return _parse_error(text, text[6:].strip())
+    if garbled := _garbled_flow_line(text, lower):
+        return garbled
     if text.startswith("!!") or lower.startswith("fatal:"):
         message = text[2:] if text.startswith("!!") else text[6:]
         return _halt(text, message.strip() or text)
@@ -205,6 +207,9 @@ def parse_response(line: str) -> Reply:
 
 
 def _parse_information(text: str) -> Reply:
+    lower = text.lower()
+    if "kill() called" in lower or "printer halted" in lower:
+        return _halt(text, text)  # the message of an `Error:` split off its line
     if text == "start" or (text.endswith("start") and _JUNK.search(text[:-5])):
         return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset("start"))
     if text.startswith("//action:"):
@@ -260,9 +265,7 @@ def _parse_error(text: str, message: str) -> Reply:
     resend_kind = None
     if any(marker in lower for marker in _LINE_NUMBER_ERRORS):
         resend_kind = ReplyKind.LINE_NUMBER_ERROR
-    elif any(marker in lower for marker in _CHECKSUM_ERRORS):
-        resend_kind = ReplyKind.CHECKSUM_ERROR
-    elif _looks_like_line_error(lower):
+    elif any(m in lower for m in _CHECKSUM_ERRORS) or _looks_like_line_error(lower):
         resend_kind = ReplyKind.CHECKSUM_ERROR
     elif _JUNK.search(message):
         # A garbled line error (line noise on the way back): it cannot be read,
@@ -286,16 +289,40 @@ _WORDINGS = (
 )
 
 
+_GARBLED_RESEND = re.compile(r"^\S{2,8}\s*:?\s*N?\d*$")
+
+
+def _garbled_flow_line(text: str, lower: str) -> Reply | None:
+    """A Resend or a line error that line noise misspelt (`R?send: 30`, `Erro:`).
+
+    Its ok still belongs to the error flow, so it is kept as such, without a
+    number: a Resend that cannot be read asks for nothing (R9, R8 recover).
+    """
+    head, colon, rest = lower.partition(":")
+    if (
+        colon
+        and len(head) <= 7
+        and SequenceMatcher(None, head, "error").ratio() >= 0.6
+        and _looks_like_line_error(rest.strip())
+    ):
+        return Reply(ReplyKind.CHECKSUM_ERROR, _IMPORTANT, text)
+    if _GARBLED_RESEND.match(text) and (
+        SequenceMatcher(None, lower.split(":")[0][:6], "resend").ratio() >= 0.6
+    ):
+        return Reply(ReplyKind.RESEND, _IMPORTANT, text)
+    return None
+
+
 def _looks_like_line_error(lower: str) -> bool:
     """A line error cut short or misspelt by line noise (`Error:ch`, `chexksum`)."""
     words = lower.split(",")[0].strip()
     if not words:
-        return False
+        return True  # `Error:` alone: its message went to the next line
     for wording in _WORDINGS:
         if wording.startswith(words):
             return True
         head = wording.split(",")[0]
-        if SequenceMatcher(None, words, head).ratio() >= 0.75:
+        if SequenceMatcher(None, words, head[: len(words) + 2]).ratio() >= 0.75:
             return True
     return False
 

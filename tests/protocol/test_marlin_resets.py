@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from printers.protocol.checksum import format_line
 from printers.protocol.events import Ack, FirmwareReset, ResendServed, Sent
 from printers.protocol.marlin import MarlinProtocol
-from printers.protocol.checksum import format_line
 from tests.protocol.test_marlin import (
     CHECKSUM_ERROR,
     JOB,

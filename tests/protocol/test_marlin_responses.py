@@ -74,6 +74,18 @@ CLASSIFIED = [
     ("Error:Wrong chec4sum", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
     ("Error:Probing failed", ReplyKind.ERROR, IMPORTANT, None),
     ("Error:Printer halted. kill() called!", ReplyKind.HALT, IMPORTANT, None),
+    ("Error:checksus mi", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Error:", ReplyKind.CHECKSUM_ERROR, IMPORTANT, None),
+    ("Printer halted. kill() called!", ReplyKind.HALT, IMPORTANT, None),
+    ("R?send: 304", ReplyKind.RESEND, IMPORTANT, None),
+    ("Resen\ufffd: 304", ReplyKind.RESEND, IMPORTANT, None),
+    (
+        "Erro:checksum mismatch, Last Line: 305",
+        ReplyKind.CHECKSUM_ERROR,
+        IMPORTANT,
+        None,
+    ),
+    ("Reset: done", ReplyKind.OTHER, RESPONSE, None),
     ("rs N12", ReplyKind.RESEND, IMPORTANT, 12),
     ("Resend:12", ReplyKind.RESEND, IMPORTANT, 12),
     (
