@@ -9,6 +9,7 @@ __all__ = [
     "ERR_LINE_NO",
     "ERR_NO_CHECKSUM",
     "FIXED_REPLIES",
+    "RRF_INFO",
     "SILENT",
     "VERSION",
     "firmware_info",
@@ -25,6 +26,12 @@ BOOT = (
     "echo: Last Updated: 2024-06-20 | Author: (printhost simulator)",
     "echo:Compiled: Jun 20 2024",
     "echo: Free Memory: 2683  PlannerBufferBytes: 1600",
+)
+
+#: M115 of the reprapfirmware dialect (RepRapFirmware 3 answers in one line).
+RRF_INFO = (
+    "FIRMWARE_NAME: RepRapFirmware for Duet 3 MB6HC FIRMWARE_VERSION: 3.5.0 "
+    "ELECTRONICS: Duet 3 MB6HC v1.01 FIRMWARE_DATE: 2024-04-19 (printhost simulator)"
 )
 
 #: What a bootloader or a UART waking up may put before `start` (no line end).

@@ -422,6 +422,9 @@ class MarlinFirmware:
             self.keepalive = min(max(given["S"], 0.0), 60.0)
 
     def _m115(self, args: str, now: float) -> None:
+        if self.dialect.name == "reprapfirmware":
+            self._print(text.RRF_INFO)
+            return
         self._print(text.firmware_info(emergency_parser=self.emergency_parser))
 
     def _m155(self, args: str, now: float) -> None:
