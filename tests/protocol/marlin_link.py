@@ -8,7 +8,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from printers.protocol.events import Ack, FirmwareReset, LinkFailed, Received, Sent
+from printers.protocol.events import (
+    Ack,
+    FirmwareError,
+    FirmwareHalted,
+    FirmwareReset,
+    LinkFailed,
+    Received,
+    Sent,
+)
 from printers.protocol.marlin import MarlinProtocol
 from printers.simulator.faults import FaultConfig, Faults
 from printers.simulator.link import Wire
@@ -72,7 +80,9 @@ def run_link(
         while (event := proto.next_event()) is not None:
             if isinstance(event, Ack):
                 run.acked.append(event.tag)
-            elif isinstance(event, LinkFailed | FirmwareReset):
+            elif isinstance(
+                event, LinkFailed | FirmwareReset | FirmwareError | FirmwareHalted
+            ):  # the worker stops the job on each of these
                 run.failures.append(repr(event))
             elif trace and isinstance(event, Sent | Received):
                 run.log.append(
