@@ -86,3 +86,18 @@ def test_line_noise_garbles_about_the_share_of_bytes() -> None:
     assert 150 < faults.garbled < 330
     assert garbled != data
     assert faults.garble(data, 0.0) == data
+
+
+def test_reprapfirmware_names_itself_in_m115() -> None:
+    lines = plain("reprapfirmware").send("M115\n")
+    assert lines[0].startswith("FIRMWARE_NAME: RepRapFirmware")
+    assert lines[-1] == "ok"
+
+
+def test_line_noise_one_per_line_hits_each_line_at_most_once() -> None:
+    faults = Faults(FaultConfig(seed=5))
+    data = b"N12 G1 X5.000 Y7.000*34\n" * 200
+    garbled = faults.garble(data, 0.5, one_per_line=True)
+    damaged = [line for line in garbled.split(b"\n") if len(line) > 1]
+    assert faults.garbled <= 200 + 50  # a hit may also make or take a line end
+    assert len(damaged) > 100
