@@ -113,7 +113,8 @@ from printers.protocol.events import (
     Sent,
     TemperatureReport,
 )
-from printers.protocol.marlin_recovery import PROBE_AFTER, Recovery
+from printers.protocol.marlin_probe import PROBE_AFTER
+from printers.protocol.marlin_recovery import Recovery
 from printers.protocol.marlin_responses import (
     Reply,
     ReplyKind,
@@ -228,7 +229,7 @@ class MarlinProtocol:
     @property
     def probes(self) -> int:
         """Statistics: numbered M105 probes sent for late oks (T6)."""
-        return self._recovery.probes
+        return self._recovery.prober.probes
 
     @property
     def timeouts(self) -> int:
@@ -329,7 +330,7 @@ class MarlinProtocol:
             recovery.timeout(printing=self.printing)
         probe = recovery.probe_deadline()
         if probe is not None and now >= probe:
-            recovery.probe()
+            recovery.prober.send()
         self._pump()
 
     def abandon(self) -> None:
@@ -405,7 +406,7 @@ class MarlinProtocol:
         # T6: RepRapFirmware does not check the line sequence, so a probe could
         # not tell a lost line from a lost ok there.
         if "reprapfirmware" in reply.text.lower().replace(" ", ""):
-            self._recovery.probing = False
+            self._recovery.prober.probing = False
         self._on_information(reply)
 
     def _on_information(self, reply: Reply) -> None:

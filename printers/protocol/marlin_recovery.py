@@ -5,7 +5,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from printers.protocol.events import Ack, ResendServed
+from printers.protocol.marlin_probe import LONG_RUNNING, PROBE_AFTER, Prober
 from printers.protocol.marlin_responses import ReplyKind
+from printers.protocol.marlin_trust import RESET_GAP, agrees, far_back, is_noise
 
 if TYPE_CHECKING:
     from collections import deque
@@ -17,23 +19,10 @@ if TYPE_CHECKING:
 
 __all__ = ["Recovery"]
 
-_LONG_RUNNING = frozenset(
-    {"M109", "M190", "M191", "M303", "G28", "G29", "M400", "G4", "M0", "M1", "M600"}
-)
 _RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
-#: R7: how far behind the oldest unacknowledged line a Resend may legitimately
-#: point. Only oks taken for the wrong line (an error's ok whose Error and
-#: Resend lines were both lost to line noise) make the firmware ask for a line
-#: the host counts as acknowledged, one line per such ok.
-RESET_GAP = 16
 #: R8: how long after a line error its Resend (or, R1b, the Resend after its ok)
 #: may take before the host acts without it, on top of two round trips.
 ERROR_WAIT = 0.05
-#: T6: a line whose ok is this late (plus four round trips) gets a probe.
-PROBE_AFTER = 0.5
-#: T6: the probe, a numbered no-op whose ok carries temperatures (T5).
-PROBE = "M105"
-_MAX_PROBES = 3
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -62,7 +51,8 @@ class Recovery:
         self._reset_seen = reset
         self._max_resends, self._max_timeouts = max_resends, max_timeouts
         self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
-        self._probe_after = probe_after
+        #: T5, T6: numbered M105 probes for late oks.
+        self.prober = Prober(window, probe_after)
         #: Statistics: genuine resend requests served, ack timeouts.
         self.resends = self.timeouts = 0
         #: Round trip send -> ok (EWMA); sizes the drain delay and T2.
@@ -87,12 +77,6 @@ class Recovery:
         self._suspect: int | None = None
         #: R7: this firmware prints its line errors (not only Resend/rs).
         self._worded_errors: bool = getattr(self, "_worded_errors", False)
-        #: T6: when the last probe went out.
-        self._probed_at: float | None = None
-        #: T6: probing needs a firmware that checks the line sequence.
-        self.probing: bool = getattr(self, "probing", True)
-        #: Statistics: probes sent.
-        self.probes: int = getattr(self, "probes", 0)
         #: Statistics: Resends ignored as line noise.
         self.noise: int = getattr(self, "noise", 0)
 
@@ -128,16 +112,11 @@ class Recovery:
         self._apply_ok(n)
 
     def _ack_through_probe(self) -> bool:
-        """T5: `ok T:..` answers the oldest live M105: the lines before it ran."""
-        live = self._window.live
-        newest = None
-        for index, line in enumerate(live):
-            if not line.numbered or line.number is None:
-                break
-            if line.text.upper() == PROBE:
-                newest = index  # an older probe's ok was lost too: newest wins
+        """T5: `ok T:..` answers the newest live M105: the lines before it ran."""
+        newest = self.prober.answered()
         if newest is None:
             return False
+        live = self._window.live
         for _ in range(newest + 1):
             self._acknowledge(live.popleft())
         self._error_at = None
@@ -216,38 +195,22 @@ class Recovery:
         self._genuine_resend(n, _context(reply, previous))
 
     def _is_noise(self, n: int, previous: Reply | None) -> bool:
-        """R9: a Resend that cannot be right is line noise, ignored.
-
-        It names a line never sent, or contradicts the line error just before it
-        (`Last Line: k` asks for k+1): one of the two lines was garbled.
-        """
-        if n > self._window.next_n:
-            return True
-        last = previous.number if previous and previous.kind in _RESEND_ERRORS else None
-        return last is not None and n != last + 1
+        """R9 (see marlin_trust.is_noise)."""
+        return is_noise(n, self._window.next_n, previous)
 
     def _behind(self, n: int, previous: Reply | None) -> str | None:
-        """R7: "reset" for an acknowledged line 1 or one far back, or "ignore".
+        """R7: "reset" for an acknowledged line 1 or one far back, "ignore", or None.
 
         Believed only when the same request comes twice in a row (and, from a
         firmware that words its line errors, with the error line agreeing each
-        time): line noise can garble one number, hardly the same way twice. A
-        small step back (an error's ok taken for a line's) is served: the
-        firmware checks the sequence.
+        time): line noise can garble one number, hardly the same way twice.
         """
         window = self._window
-        oldest = window.oldest_unacked()
-        first = window.history.first
-        if n >= oldest or (first + 1 < n and oldest - n <= RESET_GAP):
+        if not far_back(n, window.oldest_unacked(), window.history.first):
             self._suspect = None
             return None
-        agreed = (
-            previous is not None
-            and previous.kind in _RESEND_ERRORS
-            and previous.number == n - 1
-        )
         self.noise += 1
-        if self._worded_errors and not agreed:
+        if self._worded_errors and not agrees(n, previous):
             return "ignore"
         if self._suspect == n:
             return "reset"
@@ -294,7 +257,7 @@ class Recovery:
     def temperature(self) -> None:
         """A temperature report is progress while a long command is oldest (T1)."""
         live = self._window.live
-        if live and live[0].word in _LONG_RUNNING:
+        if live and live[0].word in LONG_RUNNING:
             self.progress()
 
     def progress(self) -> None:
@@ -385,31 +348,9 @@ class Recovery:
 
     def probe_deadline(self) -> float | None:
         """T6: when the oldest live line's ok is late enough to send a probe."""
-        window = self._window
-        live = window.live
-        after = self._probe_after
-        if after is None or not self.probing or not live or self._busy_seen:
-            return None
-        oldest = live[0]
-        if (
-            oldest.sent_at is None
-            or oldest.number is None
-            or oldest.word in _LONG_RUNNING
-            or sum(line.text.upper() == PROBE for line in live) >= _MAX_PROBES
-            or window.queued
-        ):
-            return None
-        base = max(self._last_progress, oldest.sent_at, self._probed_at or 0.0)
-        return base + after + 4 * self.rtt
-
-    def probe(self) -> None:
-        """T6: send a numbered M105; its ok (T5) or its Resend settles the late line."""
-        self._probed_at = self._window.clock
-        self.probes += 1
-        if self._window.rewinding:
-            self._window.push_next()  # the next line to re-send asks the same
-        else:
-            self._window.add_probe(PROBE)
+        return self.prober.deadline(
+            since=self._last_progress, rtt=self.rtt, busy=self._busy_seen
+        )
 
     def error_deadline(self) -> float | None:
         """R1b, R8: when a line error's Resend is overdue."""
