@@ -1,8 +1,8 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_window.py and marlin_recovery.py only carry them out (h11's
-# _state.py habit).
+# the code below, marlin_window.py, marlin_recovery.py, marlin_trust.py and
+# marlin_probe.py only carry them out (h11's _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
@@ -37,8 +37,9 @@
 #   ok                            | acks the oldest live line (FIFO)    | Ack(tag)
 #   ok N<n> P<p> B<b> / ok <n>    | acks live lines up to n; FIFO if n  | Ack(tag)...
 #                                 | is unknown; P+B -> advanced_ok      |
-#   ok T:...                      | as ok                               | Temperature..
-#   Error: line number / checksum | remembered for the next Resend      | -
+#   ok T:...                      | T5, else as ok                      | Temperature..
+#   Error: line number / checksum | R1b, R8 (any firmware's wording,    | -
+#   (also garbled or cut short)   | never fatal)                        |
 #   Resend: n / rs n              | R1-R6                               | ResendServed
 #   skip n (Repetier)             | a duplicate (R3), or R6             | -
 #   wait                          | T2                                  | -
@@ -59,15 +60,15 @@
 #       a Resend next proves it was the error's (dropped, no ok awaited after the
 #       Resend); any other reply releases it as a line's ok.
 #   R2  A genuine request for n: live lines numbered >= n die, lines n.. go again
-#       from the history before anything new, dup_budget = lines that died (plus
+#       from the history before anything new, dup_budget = lines that died behind
+#       the refused one (plus
 #       what was left if n was already the recovery's), dead bytes stay charged
 #       for rx_buffer*10/baud + round trip (EWMA of send->ok).
 #   R3  Same n as the recovery, after a line-number error, dup_budget > 0: a
 #       leftover of a dead line, dup_budget -= 1. After a checksum error, for
 #       another n, or with the budget spent: genuine (R2).
 #   R4  n == the next number never sent: nothing to re-send; n becomes the
-#       recovery's, keeping its budget. n beyond it, or before this numbering's
-#       M110: LinkFailed.
+#       recovery's, keeping its budget.
 #   R5  The same n genuinely requested more than max_resends times: LinkFailed.
 #   R6  The first Resend m (or skip m-1) after a timeout proves lines < m arrived:
 #       they are acknowledged, and the re-sent copies among them (each will bring
@@ -78,7 +79,17 @@
 #       (a silent reset, boot noise): FirmwareReset, abandon(); nothing is
 #       replayed. Lost oks only make the firmware ask for *later* lines; only
 #       oks taken for the wrong line (R1 with the Error and Resend lost) make it
-#       ask for earlier ones, one line per such ok.
+#       ask for earlier ones, one line per such ok (those are served). Believed
+#       when it comes twice in a row, each time agreeing with its error line
+#       (`Last Line: n-1`) if the firmware words its errors; else ignored.
+#   R8  A line error with no Resend within ERROR_WAIT + 2 round trips (lost or
+#       garbled, or none sent: Prusa's `No Line Number with checksum`): the
+#       oldest live line goes again as after a timeout (R6 sorts out what the
+#       firmware had), uncounted; with nothing live, the line after the one the
+#       error names. A held ok (R1b) is dropped then.
+#   R9  A Resend for a line never sent, one contradicting its error line, or one
+#       that cannot be read (garbled) is line noise: ignored, its ok swallowed,
+#       R8 still watching its error.
 #   Acknowledging a line >= the recovery's n ends the recovery.
 #
 # Timeouts (next_deadline / handle_timeout)
@@ -93,6 +104,17 @@
 #   T3  Any ok resets the row of timeouts.
 #   T4  In timeout recovery, an ok while nothing is live and the M110 waits to go
 #       again was the M110's late ok: it is not sent again.
+#   T5  `ok T:..` (the answer of an M105) acknowledges every live line up to the
+#       newest live numbered M105: the firmware runs lines in order, so the oks of
+#       the lines before it were lost.
+#   T6  The oldest live numbered line's ok is PROBE_AFTER + 4 round trips late,
+#       nothing long-running (G28, G29, M109, M190, M400, G4...) or busy: in the
+#       way: a numbered M105 probe goes out beyond the window (during a re-send,
+#       the next line to re-send instead), at most 3 live. Lost ok -> T5; lost or
+#       cut line -> the probe brings its Resend. Nothing is sent twice. Off for
+#       RepRapFirmware (FIRMWARE_NAME), which does not check the sequence.
+#
+# Replies merged by a lost line end are split first (`okok`, `Resend: 5ok`).
 #
 # Emergency: send_emergency() writes ahead of everything unwritten, ignoring the
 # window. M112 expects no ok; others (M108, M410, M876) become live internal lines.
