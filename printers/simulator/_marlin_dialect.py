@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from printers.simulator import _marlin_text as text
+
 __all__ = ["DIALECTS", "Dialect"]
 
 
@@ -27,11 +29,9 @@ class Dialect:
 
     name: str
     #: What it prints for each fault, {last} and {got} filled in; None: silence.
-    line_number: str | None = (
-        "Error:Line Number is not Last Line Number+1, Last Line: {last}"
-    )
-    checksum: str | None = "Error:checksum mismatch, Last Line: {last}"
-    no_checksum: str | None = "Error:No Checksum with line number, Last Line: {last}"
+    line_number: str | None = f"Error:{text.ERR_LINE_NO}{{last}}"
+    checksum: str | None = f"Error:{text.ERR_CHECKSUM}{{last}}"
+    no_checksum: str | None = f"Error:{text.ERR_NO_CHECKSUM}{{last}}"
     #: A `*` on a line without `N`: an Error line alone, no Resend, no ok (Prusa,
     #: Marlin 1.x). None: the line runs unchecked, as in Marlin 2.
     no_line_number: str | None = None
