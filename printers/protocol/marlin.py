@@ -1,8 +1,8 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_window.py and marlin_recovery.py only carry them out (h11's
-# _state.py habit).
+# the code below, marlin_window.py, marlin_recovery.py, marlin_trust.py and
+# marlin_probe.py only carry them out (h11's _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
@@ -28,21 +28,24 @@
 #       seen, flow not "ping_pong"): lines < max(B)+1. Both windowed modes also keep
 #       sum(len(wire)+1) of live and dead lines <= rx_buffer.
 #   W3  With nothing live and nothing dead any one line may go (never deadlock).
+#   W4  While a re-sent line waits for its ok, it is the only live line from the
+#       requested one on: on a noisy line a whole window sent again is rarely whole.
 #
 # Replies (each line emits Received(text, kind) before its meaning)
 #   reply                         | effect                              | events
-#   ok right after Resend/rs/skip | swallowed (it belongs to a bad line)| -
+#   ok after Resend/rs/skip       | swallowed (it belongs to a bad line)| -
 #   ok                            | acks the oldest live line (FIFO)    | Ack(tag)
 #   ok N<n> P<p> B<b> / ok <n>    | acks live lines up to n; FIFO if n  | Ack(tag)...
 #                                 | is unknown; P+B -> advanced_ok      |
-#   ok T:...                      | as ok                               | Temperature..
-#   Error: line number / checksum | remembered for the next Resend      | -
+#   ok T:...                      | T5, else as ok                      | Temperature..
+#   Error: line number / checksum | R1b, R8 (any firmware's wording,    | -
+#   (also garbled or cut short)   | never fatal)                        |
 #   Resend: n / rs n              | R1-R6                               | ResendServed
 #   skip n (Repetier)             | a duplicate (R3), or R6             | -
 #   wait                          | T2                                  | -
 #   busy:                         | progress, busy_timeout applies      | Busy
 #   T:.. B:.. report              | progress if a long command is oldest| Temperature..
-#   start                         | abandon() (F2 follows)              | FirmwareReset
+#   start (also after junk bytes) | abandon() (F2 follows)              | FirmwareReset
 #   kill()/thermal/`!!`/fatal:    | abandon()                           | FirmwareHalted
 #   other Error:                  | -                                   | FirmwareError
 #   //action:, FIRMWARE_NAME:,    | -                                   | ActionCommand,
@@ -50,21 +53,43 @@
 #
 # Resends (Marlin flushes its RX ring on a bad line; every line already behind it
 # then brings another Error + Resend for the same n, or nothing if it was flushed)
-#   R1  The ok right after Resend/rs/skip is swallowed; any other line ends the wait.
+#   R1  The first ok after Resend/rs/skip is swallowed. Nothing is written for a
+#       drain delay after a Resend (its ok comes first); writing a line after it
+#       ends the wait (Smoothieware's `rs` and some Marlin 2.0 builds send no ok).
+#   R1b A line error then ok (some firmware sends ok before Resend): the ok is held;
+#       a Resend next proves it was the error's (dropped, no ok awaited after the
+#       Resend); any other reply releases it as a line's ok.
 #   R2  A genuine request for n: live lines numbered >= n die, lines n.. go again
-#       from the history before anything new, dup_budget = lines that died (plus
+#       from the history before anything new, dup_budget = lines that died behind
+#       the refused one (plus
 #       what was left if n was already the recovery's), dead bytes stay charged
 #       for rx_buffer*10/baud + round trip (EWMA of send->ok).
 #   R3  Same n as the recovery, after a line-number error, dup_budget > 0: a
 #       leftover of a dead line, dup_budget -= 1. After a checksum error, for
 #       another n, or with the budget spent: genuine (R2).
 #   R4  n == the next number never sent: nothing to re-send; n becomes the
-#       recovery's, keeping its budget. n beyond it, or before this numbering's
-#       M110: LinkFailed.
+#       recovery's, keeping its budget.
 #   R5  The same n genuinely requested more than max_resends times: LinkFailed.
 #   R6  The first Resend m (or skip m-1) after a timeout proves lines < m arrived:
 #       they are acknowledged, and the re-sent copies among them (each will bring
 #       its own Resend m) become the dup_budget of m. Timeout recovery ends.
+#   R7  A Resend for a line already acknowledged (below the oldest unacknowledged
+#       line), when it names the first line after the M110 or lies more than
+#       RESET_GAP lines back, means the firmware reset without a readable `start`
+#       (a silent reset, boot noise): FirmwareReset, abandon(); nothing is
+#       replayed. Lost oks only make the firmware ask for *later* lines; only
+#       oks taken for the wrong line (R1 with the Error and Resend lost) make it
+#       ask for earlier ones, one line per such ok (those are served). Believed
+#       when it comes twice in a row, each time agreeing with its error line
+#       (`Last Line: n-1`) if the firmware words its errors; else ignored.
+#   R8  A line error with no Resend within ERROR_WAIT + 2 round trips (lost or
+#       garbled, or none sent: Prusa's `No Line Number with checksum`): the
+#       oldest live line goes again as after a timeout (R6 sorts out what the
+#       firmware had), uncounted; with nothing live, the line after the one the
+#       error names. A held ok (R1b) is dropped then.
+#   R9  A Resend for a line never sent, one contradicting its error line, or one
+#       that cannot be read (garbled) is line noise: ignored, its ok swallowed,
+#       R8 still watching its error.
 #   Acknowledging a line >= the recovery's n ends the recovery.
 #
 # Timeouts (next_deadline / handle_timeout)
@@ -79,6 +104,17 @@
 #   T3  Any ok resets the row of timeouts.
 #   T4  In timeout recovery, an ok while nothing is live and the M110 waits to go
 #       again was the M110's late ok: it is not sent again.
+#   T5  `ok T:..` (the answer of an M105) acknowledges every live line up to the
+#       newest live numbered M105: the firmware runs lines in order, so the oks of
+#       the lines before it were lost.
+#   T6  The oldest live numbered line's ok is PROBE_AFTER + 4 round trips late,
+#       nothing long-running (G28, G29, M109, M190, M400, G4...) or busy: in the
+#       way: a numbered M105 probe goes out beyond the window (during a re-send,
+#       the next line to re-send instead), at most 3 live. Lost ok -> T5; lost or
+#       cut line -> the probe brings its Resend. Nothing is sent twice. Off for
+#       RepRapFirmware (FIRMWARE_NAME), which does not check the sequence.
+#
+# Replies merged by a lost line end are split first (`okok`, `Resend: 5ok`).
 #
 # Emergency: send_emergency() writes ahead of everything unwritten, ignoring the
 # window. M112 expects no ok; others (M108, M410, M876) become live internal lines.
@@ -93,15 +129,20 @@ from typing import TYPE_CHECKING, ClassVar
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
-    FirmwareMessage,
     FirmwareReset,
-    LineKind,
     LinkFailed,
     Received,
     Sent,
+    TemperatureReport,
 )
+from printers.protocol.marlin_probe import PROBE_AFTER
 from printers.protocol.marlin_recovery import Recovery
-from printers.protocol.marlin_responses import Reply, ReplyKind, parse_response
+from printers.protocol.marlin_responses import (
+    Reply,
+    ReplyKind,
+    parse_response,
+    split_merged,
+)
 from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
 
 if TYPE_CHECKING:
@@ -137,6 +178,7 @@ class MarlinProtocol:
         busy_timeout: float = 30.0,
         max_resends: int = 10,
         max_timeouts: int = 5,
+        probe_after: float | None = PROBE_AFTER,
         baud: int = 115200,
     ) -> None:
         if checksums not in _CHECKSUM_MODES or flow not in _FLOW_MODES:
@@ -167,10 +209,12 @@ class MarlinProtocol:
             self._window,
             self._events,
             self._fail,
+            self._silent_reset,
             max_resends=max_resends,
             max_timeouts=max_timeouts,
             ack_timeout=ack_timeout,
             busy_timeout=busy_timeout,
+            probe_after=probe_after,
         )
 
     # -- read-only state -------------------------------------------------------------
@@ -203,6 +247,11 @@ class MarlinProtocol:
     def resends(self) -> int:
         """Statistics: genuine resend requests served."""
         return self._recovery.resends
+
+    @property
+    def probes(self) -> int:
+        """Statistics: numbered M105 probes sent for late oks (T6)."""
+        return self._recovery.prober.probes
 
     @property
     def timeouts(self) -> int:
@@ -258,8 +307,10 @@ class MarlinProtocol:
                 lines.append(self._rx)
                 self._rx = b""
             for raw in lines:
-                if raw.strip():
-                    self._handle_line(raw)
+                # Undecodable bytes become U+FFFD: junk that only `start` may follow.
+                text = raw.decode("utf-8", errors="replace").strip()
+                for part in split_merged(text) if text else ():
+                    self._handle_line(part)
         self._pump()
 
     def next_event(self) -> Event | None:
@@ -269,6 +320,8 @@ class MarlinProtocol:
     def data_to_send(self) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
         self._pump()
+        if self._window.outbox:
+            self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
         lines = self._window.take_unwritten()
         for line in lines:
             self._events.append(Sent(line.wire, line.number, line.resend))
@@ -277,16 +330,29 @@ class MarlinProtocol:
 
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
-        candidates = (self._window.drain_until, self._recovery.deadline())
+        recovery = self._recovery
+        candidates = (
+            self._window.drain_until,
+            recovery.deadline(),
+            recovery.error_deadline(),
+            recovery.probe_deadline(),
+        )
         deadlines = [d for d in candidates if d is not None]
         return min(deadlines) if deadlines else None
 
     def handle_timeout(self, now: float) -> None:
         """End a finished drain; on a passed ack deadline apply T1."""
         self._window.advance(now)
-        deadline = self._recovery.deadline()
+        recovery = self._recovery
+        error_deadline = recovery.error_deadline()
+        if error_deadline is not None and now >= error_deadline:
+            recovery.error_timeout(printing=self.printing)
+        deadline = recovery.deadline()
         if deadline is not None and now >= deadline:
-            self._recovery.timeout(printing=self.printing)
+            recovery.timeout(printing=self.printing)
+        probe = recovery.probe_deadline()
+        if probe is not None and now >= probe:
+            recovery.prober.send()
         self._pump()
 
     def abandon(self) -> None:
@@ -307,6 +373,8 @@ class MarlinProtocol:
         mode = self.flow_mode
         if mode == "ping_pong":
             return 1
+        if self._recovery.recovering:
+            return 1 + self._recovery.settled_live()  # W4
         return self._max_b + 1 if mode == "advanced" else self._bufsize
 
     def _pump(self) -> None:
@@ -314,17 +382,11 @@ class MarlinProtocol:
 
     # -- replies ---------------------------------------------------------------------
 
-    def _handle_line(self, raw: bytes) -> None:
-        try:
-            reply = parse_response(raw.decode("utf-8").strip())
-        except UnicodeDecodeError:
-            text = raw.decode("utf-8", errors="replace").strip()
-            reply = Reply(
-                ReplyKind.OTHER, LineKind.RESPONSE, text, event=FirmwareMessage(text)
-            )
+    def _handle_line(self, text: str) -> None:
+        reply = parse_response(text)
         self._events.append(Received(reply.text, reply.line_kind))
-        if reply.kind is not ReplyKind.OK:
-            self._recovery.awaiting_ok = False
+        if reply.kind not in (ReplyKind.OK, ReplyKind.RESEND, ReplyKind.SKIP):
+            self._recovery.release_held_ok()
         self._HANDLERS.get(reply.kind, MarlinProtocol._on_information)(self, reply)
         self._previous = reply
 
@@ -334,7 +396,8 @@ class MarlinProtocol:
             self._events.append(reply.event)
         if reply.buffer_free is not None and not self._recovery.awaiting_ok:
             self._max_b = max(self._max_b, reply.buffer_free)
-        self._recovery.ok(reply.number)
+        temperatures = isinstance(reply.event, TemperatureReport)
+        self._recovery.ok(reply.number, temperatures=temperatures)
 
     def _on_resend(self, reply: Reply) -> None:
         self._recovery.resend(reply, self._previous)
@@ -354,19 +417,27 @@ class MarlinProtocol:
         self._on_information(reply)
 
     def _on_start(self, reply: Reply) -> None:
-        self._events.append(FirmwareReset(reply.text))
+        self._events.append(reply.event or FirmwareReset(reply.text))
         self.abandon()
 
     def _on_halt(self, reply: Reply) -> None:
         self._on_information(reply)
         self.abandon()
 
+    def _on_firmware_info(self, reply: Reply) -> None:
+        # T6: RepRapFirmware does not check the line sequence, so a probe could
+        # not tell a lost line from a lost ok there.
+        if "reprapfirmware" in reply.text.lower().replace(" ", ""):
+            self._recovery.prober.probing = False
+        self._on_information(reply)
+
     def _on_information(self, reply: Reply) -> None:
         if reply.event is not None:
             self._events.append(reply.event)
 
     def _on_resend_error(self, reply: Reply) -> None:
-        """Error lines of the resend flow mean nothing until their Resend comes."""
+        """Error lines of the resend flow wait for their Resend (R1b, R8)."""
+        self._recovery.line_error(reply.number)
 
     _HANDLERS: ClassVar[dict[ReplyKind, Callable[[MarlinProtocol, Reply], None]]] = {
         ReplyKind.OK: _on_ok,
@@ -375,11 +446,17 @@ class MarlinProtocol:
         ReplyKind.WAIT: _on_wait,
         ReplyKind.BUSY: _on_busy,
         ReplyKind.TEMPERATURE: _on_temperature,
+        ReplyKind.FIRMWARE_INFO: _on_firmware_info,
         ReplyKind.START: _on_start,
         ReplyKind.HALT: _on_halt,
         ReplyKind.LINE_NUMBER_ERROR: _on_resend_error,
         ReplyKind.CHECKSUM_ERROR: _on_resend_error,
     }
+
+    def _silent_reset(self, banner: str) -> None:
+        """R7: the firmware counts from zero again without having said so."""
+        self._events.append(FirmwareReset(banner))
+        self.abandon()
 
     def _fail(self, message: str) -> None:
         self._events.append(LinkFailed(message))

@@ -5,7 +5,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from printers.protocol.events import Ack, ResendServed
+from printers.protocol.marlin_probe import LONG_RUNNING, PROBE_AFTER, Prober
 from printers.protocol.marlin_responses import ReplyKind
+from printers.protocol.marlin_trust import RESET_GAP, agrees, far_back, is_noise
 
 if TYPE_CHECKING:
     from collections import deque
@@ -17,10 +19,10 @@ if TYPE_CHECKING:
 
 __all__ = ["Recovery"]
 
-_LONG_RUNNING = frozenset(
-    {"M109", "M190", "M191", "M303", "G28", "G29", "M400", "G4", "M0", "M1", "M600"}
-)
 _RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
+#: R8: how long after a line error its Resend (or, R1b, the Resend after its ok)
+#: may take before the host acts without it, on top of two round trips.
+ERROR_WAIT = 0.05
 _RTT_START = 0.05
 _RTT_CAP = 1.0
 
@@ -37,15 +39,20 @@ class Recovery:
         window: LineWindow,
         events: deque[Event],
         fail: Callable[[str], None],
+        reset: Callable[[str], None],
         *,
         max_resends: int,
         max_timeouts: int,
         ack_timeout: float,
         busy_timeout: float,
+        probe_after: float | None = PROBE_AFTER,
     ) -> None:
         self._window, self._events, self._fail = window, events, fail
+        self._reset_seen = reset
         self._max_resends, self._max_timeouts = max_resends, max_timeouts
         self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
+        #: T5, T6: numbered M105 probes for late oks.
+        self.prober = Prober(window, probe_after)
         #: Statistics: genuine resend requests served, ack timeouts.
         self.resends = self.timeouts = 0
         #: Round trip send -> ok (EWMA); sizes the drain delay and T2.
@@ -60,16 +67,80 @@ class Recovery:
         self._dup_budget = self._repeats = self._consecutive_timeouts = 0
         self._after_timeout = self._busy_seen = False
         self._last_progress = self._window.clock
+        #: R8: when the last line error came that no Resend has answered yet.
+        self._error_at: float | None = None
+        #: R8: the last good line the unanswered error named.
+        self._error_last: int | None = None
+        #: R1b: an ok that came right after a line error, held back (its number).
+        self._held_ok: tuple[int | None] | None = None
+        #: R7: a Resend for an acknowledged line, seen once, not yet believed.
+        self._suspect: int | None = None
+        #: R7: this firmware prints its line errors (not only Resend/rs).
+        self._worded_errors: bool = getattr(self, "_worded_errors", False)
+        #: Statistics: Resends ignored as line noise.
+        self.noise: int = getattr(self, "noise", 0)
+
+    @property
+    def recovering(self) -> bool:
+        """W4: a line asked for again is not acknowledged yet."""
+        return self._n is not None
+
+    def settled_live(self) -> int:
+        """W4: live lines before the one asked for again (the firmware has them)."""
+        n = self._n
+        return sum(
+            1
+            for line in self._window.live
+            if n is not None and line.number is not None and line.number < n
+        )
 
     # -- replies ---------------------------------------------------------------------
 
-    def ok(self, n: int | None) -> None:
-        """`ok` or `ok N<n>`: T3, R1, then acknowledge what it answers."""
+    def ok(self, n: int | None, *, temperatures: bool = False) -> None:
+        """`ok` or `ok N<n>`: T3, R1, R1b, T5, then acknowledge what it answers."""
         self.progress()
         self._consecutive_timeouts = 0
+        settled = not self.awaiting_ok and self._held_ok is None
+        if temperatures and settled and self._ack_through_probe():
+            return
         if self.awaiting_ok:
             self.awaiting_ok = False
             return
+        if self._error_at is not None and self._held_ok is None:
+            self._held_ok = (n,)  # R1b: the error's own ok if a Resend follows
+            return
+        self._apply_ok(n)
+
+    def _ack_through_probe(self) -> bool:
+        """T5: `ok T:..` answers the newest live M105: the lines before it ran."""
+        newest = self.prober.answered()
+        if newest is None:
+            return False
+        live = self._window.live
+        for _ in range(newest + 1):
+            self._acknowledge(live.popleft())
+        self._error_at = None
+        return True
+
+    def line_error(self, last: int | None = None) -> None:
+        """A line error (checksum, line number): its Resend should follow (R8).
+
+        *last* is the firmware's last good line, as the error names it.
+        """
+        self._worded_errors = True
+        self.release_held_ok()
+        self._error_at = self._window.clock
+        self._error_last = last
+
+    def release_held_ok(self) -> None:
+        """R1b: no Resend followed the held ok: it answers a live line after all."""
+        held, self._held_ok = self._held_ok, None
+        if held is not None:
+            self._apply_ok(held[0])
+
+    def _apply_ok(self, n: int | None) -> None:
+        if self._window.live:
+            self._error_at = None  # a line got through since the error
         live = self._window.live
         if live and (n is None or not self._ack_through(n)):
             if not self._is_stale(n):
@@ -80,9 +151,15 @@ class Recovery:
     def resend(self, reply: Reply, previous: Reply | None) -> None:
         """`Resend: n` / `rs n` (F3, R2-R6); *previous* is the line before it."""
         self.progress()
-        self.awaiting_ok = True
+        ok_came_first = self._held_ok is not None
+        self._held_ok = self._error_at = None
+        self.awaiting_ok = not ok_came_first  # R1, R1b
         window, n = self._window, reply.number
-        if window.need_m110 or n is None:
+        window.hold(self.rtt)
+        if n is None:
+            self._error_at = window.clock  # R9: unreadable; R8 recovers
+            return
+        if window.need_m110:
             return  # nothing numbered since the last reset: not ours
         if window.m110_next():
             return  # F3: the M110 goes again anyway, this is a leftover
@@ -91,6 +168,19 @@ class Recovery:
         )
         if m110 is not None:  # F3: about the M110 itself, whatever number it names
             self._genuine_resend(m110, _context(reply, previous))
+            return
+        if self._is_noise(n, previous):
+            self.noise += 1
+            if previous is not None and previous.kind in _RESEND_ERRORS:
+                self._error_at = window.clock  # R8 still watches its error
+            return
+        behind = self._behind(n, previous)
+        if behind == "ignore":
+            return
+        if behind == "reset":
+            oldest = window.oldest_unacked()
+            self._reset_seen(f"{reply.text} after line {oldest - 1} was acknowledged")
+            self.awaiting_ok = True  # R1 still holds for the ok that follows
             return
         copies = self._ack_received(n) if self._after_timeout else 0
         self._after_timeout = False
@@ -102,13 +192,30 @@ class Recovery:
         if n == window.next_n:
             self._n, self._repeats = n, 0
             return
-        elif not window.history.first <= n < window.next_n:
-            self._fail(
-                f"cannot resend line {n}: only lines {window.history.first} to "
-                f"{window.next_n - 1} were sent since the last M110 ({reply.text!r})"
-            )
-            return
         self._genuine_resend(n, _context(reply, previous))
+
+    def _is_noise(self, n: int, previous: Reply | None) -> bool:
+        """R9 (see marlin_trust.is_noise)."""
+        return is_noise(n, self._window.next_n, previous)
+
+    def _behind(self, n: int, previous: Reply | None) -> str | None:
+        """R7: "reset" for an acknowledged line 1 or one far back, "ignore", or None.
+
+        Believed only when the same request comes twice in a row (and, from a
+        firmware that words its line errors, with the error line agreeing each
+        time): line noise can garble one number, hardly the same way twice.
+        """
+        window = self._window
+        if not far_back(n, window.oldest_unacked(), window.history.first):
+            self._suspect = None
+            return None
+        self.noise += 1
+        if self._worded_errors and not agrees(n, previous):
+            return "ignore"
+        if self._suspect == n:
+            return "reset"
+        self._suspect = n
+        return "ignore"
 
     def _is_duplicate(self, n: int, previous: Reply | None) -> bool:
         kind = previous.kind if previous else None
@@ -119,14 +226,20 @@ class Recovery:
         )
 
     def skip(self, n: int | None) -> None:
-        """Repetier's `skip n`: a duplicate (R3), or after a timeout R6."""
+        """Repetier's `skip n`: a duplicate (R3), after a timeout R6, else R8.
+
+        A skip nobody expects answers a line whose number noise turned into an
+        old one: like a line error without Resend, the oldest live line goes again.
+        """
         self.progress()
-        self.awaiting_ok = True
         if self._after_timeout and n is not None:
             self._ack_received(n + 1)
             self._after_timeout = False
         elif self._dup_budget > 0:
             self._dup_budget -= 1
+        else:
+            self.line_error()
+        self.awaiting_ok = True
 
     def wait(self, *, printing: bool) -> None:
         """`wait` (T2)."""
@@ -144,7 +257,7 @@ class Recovery:
     def temperature(self) -> None:
         """A temperature report is progress while a long command is oldest (T1)."""
         live = self._window.live
-        if live and live[0].word in _LONG_RUNNING:
+        if live and live[0].word in LONG_RUNNING:
             self.progress()
 
     def progress(self) -> None:
@@ -214,10 +327,15 @@ class Recovery:
         self.resends += 1
         self._rewind(n, message)
 
-    def _rewind(self, n: int, message: str) -> None:
+    def _rewind(self, n: int, message: str, *, timed_out: bool = False) -> None:
         """R2: lines >= n die and go again from the history, after a drain delay."""
         self._ack_unsent_before(n)
         died = self._window.rewind(n, self.rtt)
+        # The oldest dead line brought the request being served: only lines
+        # behind it can bring leftovers (a budget too high would ignore a
+        # genuine request; one too low only re-sends a line the firmware refuses).
+        if died and not timed_out:
+            died -= 1
         self._dup_budget = died + (self._dup_budget if n == self._n else 0)
         self._n = n
         self._events.append(ResendServed(n, message))
@@ -227,6 +345,43 @@ class Recovery:
         self._dup_budget = self._repeats = 0
 
     # -- timeouts --------------------------------------------------------------------
+
+    def probe_deadline(self) -> float | None:
+        """T6: when the oldest live line's ok is late enough to send a probe."""
+        return self.prober.deadline(
+            since=self._last_progress, rtt=self.rtt, busy=self._busy_seen
+        )
+
+    def error_deadline(self) -> float | None:
+        """R1b, R8: when a line error's Resend is overdue."""
+        if self._error_at is None:
+            return None
+        return self._error_at + ERROR_WAIT + 2 * self.rtt
+
+    def error_timeout(self, *, printing: bool) -> None:
+        """R8: no Resend came: re-send from the oldest live line (R6 sorts it out).
+
+        A held ok is dropped, not applied: it may be the error's own (its Resend
+        lost); if it was a line's, the firmware's answer to the copy proves it.
+        """
+        self._held_ok = None
+        self._error_at = None
+        window = self._window
+        live = window.live
+        if live and live[0].number is not None and live[0].sent_at is not None:
+            self.timeout(printing=printing, counted=False)
+            return
+        # Nothing live: an ok was taken for a line the error says is missing.
+        last = self._error_last
+        oldest = window.oldest_unacked()
+        if (
+            last is not None
+            and window.history.first < last + 1 < oldest
+            and oldest - (last + 1) <= RESET_GAP
+            and not window.rewinding
+        ):
+            self._rewind(last + 1, f"line error without Resend: line {last + 1}")
+            self._after_timeout = True
 
     def deadline(self) -> float | None:
         """T1: when the oldest live line is overdue; None with nothing written."""
@@ -255,7 +410,9 @@ class Recovery:
             if oldest.number != self._n:
                 self._repeats = 0
             self._rewind(
-                oldest.number, f"no answer to line {oldest.number} in {waited:.1f} s"
+                oldest.number,
+                f"no answer to line {oldest.number} in {waited:.1f} s",
+                timed_out=True,
             )
             self._after_timeout = True
         elif not printing:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 import re
 from dataclasses import dataclass
+from difflib import SequenceMatcher
 
 from printers.protocol.events import (
     ActionCommand,
@@ -20,7 +21,13 @@ from printers.protocol.events import (
     TemperatureReport,
 )
 
-__all__ = ["Reply", "ReplyKind", "parse_response", "parse_temperatures"]
+__all__ = [
+    "Reply",
+    "ReplyKind",
+    "parse_response",
+    "parse_temperatures",
+    "split_merged",
+]
 
 
 class ReplyKind(enum.Enum):
@@ -91,23 +98,44 @@ _WAIT = Reply(ReplyKind.WAIT, _ACK, "wait")
 
 _OK_NUMBER = re.compile(r"N?(-?\d+)$")
 _ADVANCED_OK = re.compile(r"(?:N(-?\d+)\s+)?P(\d+)\s+B(\d+)")
-_RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)", re.IGNORECASE)
-_SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)", re.IGNORECASE)
-_LAST_LINE = re.compile(r"(?:last line|expected line)\s*:?\s*(-?\d+)", re.IGNORECASE)
+# Whole-line matches: a Resend with anything garbled around its number is not
+# believed (R9); it counts as a lost Resend (R8).
+_RESEND = re.compile(r"(?:resend|rs)\s*:?\s*N?:?\s*(-?\d+)\s*$", re.IGNORECASE)
+_SKIP = re.compile(r"skip\s*:?\s*N?(-?\d+)\s*$", re.IGNORECASE)
 _TEMPERATURE = re.compile(
     r"(?:^|\s)(T\d*|B|C|P|L)\s*:\s*(-?\d+(?:\.\d*)?)(?:\s*/\s*(-?\d+(?:\.\d*)?))?"
 )
 _TEMPERATURE_START = re.compile(r"(?:T\d*|B|C)\s*:\s*-?\d")
+#: Bytes no firmware prints on purpose: a bootloader's or a waking UART's noise.
+_JUNK = re.compile(r"[^\x20-\x7e]")
 _INFO_KEY = re.compile(r"(?:^|\s)([A-Z][A-Z0-9_]{2,}):")
 _CAPABILITY = re.compile(r"Cap:([A-Za-z0-9_]+):\s*([01])$")
 
-_LINE_NUMBER_ERRORS = ("line number is not last line number+1", "expected line")
+# Line errors in each firmware's wording (wording facts, from their sources):
+# Marlin/Prusa `Line Number is not Last Line Number+1, Last Line: <n>`, `checksum
+# mismatch, Last Line: <n>`, `No Checksum with line number, Last Line: <n>`,
+# Prusa/Marlin 1.x `No Line Number with checksum, Last Line: <n>`; Repetier
+# `expected line <n+1> got <m>`, `Wrong checksum`, `Missing checksum`, `Format
+# error`. Smoothieware prints none (only `rs N<n+1>`); RepRapFirmware none at all.
+_LINE_NUMBER_ERRORS = (
+    "line number is not last line number",
+    "expected line",
+    "line number is not",
+)
 _CHECKSUM_ERRORS = (
     "checksum mismatch",
     "no checksum with line number",
     "no line number with checksum",
+    "wrong checksum",
+    "missing checksum",
     "format error",
+    "checksum",
+    "last line",
+    "line number",
 )
+#: Repetier names the line it wants, the others the last one they have.
+_EXPECTED_LINE = re.compile(r"expected line\s*:?\s*(-?\d+)(?:\s+got\b|\s*$)", re.I)
+_LAST_LINE_ONLY = re.compile(r"last line\s*:?\s*(-?\d+)\s*$", re.IGNORECASE)
 _HALTS = (
     "printer halted",
     "kill() called",
@@ -121,6 +149,32 @@ _HALTS = (
     "kill caused",
     "watchdog barked",
 )
+
+
+#: Starts of replies that may follow an `ok` whose line end noise took away.
+_AFTER_OK = ("ok", "Resend", "rs ", "Error:", "echo:", "skip", "wait", "start", "T:")
+_TRAILING_OK = re.compile(r"\dok$")
+_MID_RESEND = re.compile(r"(?<=\d)(?=Resend:|rs N)")
+
+
+def split_merged(line: str) -> list[str]:
+    """Lines that lost the line end between them, apart again (line noise).
+
+    Only unambiguous joins are split: `okok`, `okResend: 5`, `ok` glued after a
+    number (`Resend: 5ok`), and `Resend:` glued after a line error's number.
+    """
+    parts: list[str] = []
+    text = line.strip()
+    while text.startswith("ok") and text[2:].startswith(_AFTER_OK):
+        parts.append("ok")
+        text = text[2:]
+    pieces = _MID_RESEND.split(text) if text.startswith("Error:") else [text]
+    for piece in pieces:
+        if not piece.startswith("ok") and _TRAILING_OK.search(piece):
+            parts += [piece[:-2], "ok"]
+        else:
+            parts.append(piece)
+    return parts
 
 
 def parse_response(line: str) -> Reply:
@@ -144,6 +198,8 @@ def parse_response(line: str) -> Reply:
         return Reply(ReplyKind.BUSY, _RESPONSE, text, event=Busy(message))
     if lower.startswith("error:"):
         return _parse_error(text, text[6:].strip())
+    if garbled := _garbled_flow_line(text, lower):
+        return garbled
     if text.startswith("!!") or lower.startswith("fatal:"):
         message = text[2:] if text.startswith("!!") else text[6:]
         return _halt(text, message.strip() or text)
@@ -151,8 +207,11 @@ def parse_response(line: str) -> Reply:
 
 
 def _parse_information(text: str) -> Reply:
-    if text == "start":
-        return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset(text))
+    lower = text.lower()
+    if "kill() called" in lower or "printer halted" in lower:
+        return _halt(text, text)  # the message of an `Error:` split off its line
+    if text == "start" or (text.endswith("start") and _JUNK.search(text[:-5])):
+        return Reply(ReplyKind.START, _IMPORTANT, text, event=FirmwareReset("start"))
     if text.startswith("//action:"):
         action, _, argument = text[9:].strip().partition(" ")
         event = ActionCommand(action, argument.strip())
@@ -206,14 +265,75 @@ def _parse_error(text: str, message: str) -> Reply:
     resend_kind = None
     if any(marker in lower for marker in _LINE_NUMBER_ERRORS):
         resend_kind = ReplyKind.LINE_NUMBER_ERROR
-    elif any(marker in lower for marker in _CHECKSUM_ERRORS):
+    elif any(m in lower for m in _CHECKSUM_ERRORS) or _looks_like_line_error(lower):
         resend_kind = ReplyKind.CHECKSUM_ERROR
+    elif _JUNK.search(message):
+        # A garbled line error (line noise on the way back): it cannot be read,
+        # so it is a resend-flow error of unknown line, never a fatal one.
+        return Reply(ReplyKind.CHECKSUM_ERROR, _IMPORTANT, text)
     if resend_kind is not None:
-        match = _LAST_LINE.search(message)
-        number = int(match[1]) if match else None
-        return Reply(resend_kind, _IMPORTANT, text, number=number)
+        return Reply(resend_kind, _IMPORTANT, text, number=_last_line(message))
     event = FirmwareError(message or text)
     return Reply(ReplyKind.ERROR, _IMPORTANT, text, event=event)
+
+
+_WORDINGS = (
+    "line number is not last line number+1, last line:",
+    "checksum mismatch, last line:",
+    "no checksum with line number, last line:",
+    "no line number with checksum, last line:",
+    "expected line",
+    "wrong checksum",
+    "missing checksum",
+    "format error",
+)
+
+
+_GARBLED_RESEND = re.compile(r"^\S{2,8}\s*:?\s*N?\d*$")
+
+
+def _garbled_flow_line(text: str, lower: str) -> Reply | None:
+    """A Resend or a line error that line noise misspelt (`R?send: 30`, `Erro:`).
+
+    Its ok still belongs to the error flow, so it is kept as such, without a
+    number: a Resend that cannot be read asks for nothing (R9, R8 recover).
+    """
+    head, colon, rest = lower.partition(":")
+    if (
+        colon
+        and len(head) <= 7
+        and SequenceMatcher(None, head, "error").ratio() >= 0.6
+        and _looks_like_line_error(rest.strip())
+    ):
+        return Reply(ReplyKind.CHECKSUM_ERROR, _IMPORTANT, text)
+    if _GARBLED_RESEND.match(text) and (
+        SequenceMatcher(None, lower.split(":")[0][:6], "resend").ratio() >= 0.6
+    ):
+        return Reply(ReplyKind.RESEND, _IMPORTANT, text)
+    return None
+
+
+def _looks_like_line_error(lower: str) -> bool:
+    """A line error cut short or misspelt by line noise (`Error:ch`, `chexksum`)."""
+    words = lower.split(",")[0].strip()
+    if not words:
+        return True  # `Error:` alone: its message went to the next line
+    for wording in _WORDINGS:
+        if wording.startswith(words):
+            return True
+        head = wording.split(",")[0]
+        if SequenceMatcher(None, words, head[: len(words) + 2]).ratio() >= 0.75:
+            return True
+    return False
+
+
+def _last_line(message: str) -> int | None:
+    """The last line the firmware has, from `Last Line: n` or `expected line n+1`."""
+    if match := _EXPECTED_LINE.search(message):
+        return int(match[1]) - 1
+    if match := _LAST_LINE_ONLY.search(message):
+        return int(match[1])
+    return None
 
 
 def _halt(text: str, message: str) -> Reply:

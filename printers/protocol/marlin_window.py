@@ -164,6 +164,35 @@ class LineWindow:
             self.bytes_in_flight + line.cost <= self._rx_buffer
         )
 
+    def add_probe(self, text: str) -> None:
+        """T6: a numbered internal line straight to the wire, beyond the window."""
+        line = Line(text, None, internal=True, numbered=True)
+        self.frame(line)
+        self._number(line)
+        self.live.append(line)
+        self.outbox.append(line)
+
+    def push_next(self) -> None:
+        """T6: the next line to re-send goes now, beyond the window (a probe)."""
+        line = self._peek()
+        if line is not None and line.resend:
+            self.rewind_next += 1
+            self.live.append(line)
+            self.outbox.append(line)
+
+    def hold(self, rtt: float) -> None:
+        """R1: write nothing for a drain delay (the ok of a Resend comes first)."""
+        drain = self._rx_buffer * 10 / self._baud + rtt
+        self.drain_until = max(self.drain_until or 0.0, self.clock + drain)
+
+    def oldest_unacked(self) -> int:
+        """The number of the oldest numbered line not acknowledged yet (R7)."""
+        oldest = self.rewind_next if self.rewinding else self.next_n
+        for line in self.live:
+            if line.number is not None and line.number < oldest:
+                oldest = line.number
+        return oldest
+
     def m110_next(self) -> bool:
         """True when the M110 itself waits to be re-sent."""
         return self.rewind_next == self.history.first < self.rewind_end

@@ -76,6 +76,7 @@ def _stats(sim: Simulator) -> dict[str, object]:
         "executed": firmware.executed_count,
         "dropped_bytes": firmware.dropped_bytes,
         "corrupted_lines": sim.faults.corrupted,
+        "garbled_bytes": sim.faults.garbled,
         "dropped_oks": sim.faults.dropped_oks,
         "closed": sim.closed,
     }

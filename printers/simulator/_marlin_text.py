@@ -4,10 +4,12 @@ from __future__ import annotations
 
 __all__ = [
     "BOOT",
+    "BOOT_NOISE",
     "ERR_CHECKSUM",
     "ERR_LINE_NO",
     "ERR_NO_CHECKSUM",
     "FIXED_REPLIES",
+    "RRF_INFO",
     "SILENT",
     "VERSION",
     "firmware_info",
@@ -25,6 +27,15 @@ BOOT = (
     "echo:Compiled: Jun 20 2024",
     "echo: Free Memory: 2683  PlannerBufferBytes: 1600",
 )
+
+#: M115 of the reprapfirmware dialect (RepRapFirmware 3 answers in one line).
+RRF_INFO = (
+    "FIRMWARE_NAME: RepRapFirmware for Duet 3 MB6HC FIRMWARE_VERSION: 3.5.0 "
+    "ELECTRONICS: Duet 3 MB6HC v1.01 FIRMWARE_DATE: 2024-04-19 (printhost simulator)"
+)
+
+#: What a bootloader or a UART waking up may put before `start` (no line end).
+BOOT_NOISE = "\xfe\xff\x00"
 
 # language.h: STR_ERR_LINE_NO, STR_ERR_CHECKSUM_MISMATCH, STR_ERR_NO_CHECKSUM.
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "

@@ -8,7 +8,8 @@ import sys
 import time
 from pathlib import Path
 
-from printers.simulator.faults import FaultConfig, Faults
+from printers.simulator._marlin_dialect import DIALECTS
+from printers.simulator.faults import RESET_BANNERS, FaultConfig, Faults
 from printers.simulator.grbl import GrblFirmware
 from printers.simulator.marlin import MarlinFirmware
 from printers.simulator.runner import (
@@ -68,11 +69,35 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     machine.add_argument(
         "--keepalive", type=float, default=2.0, help="seconds; 0 = off"
     )
+    machine.add_argument(
+        "--dialect", choices=tuple(DIALECTS), default="marlin",
+        help="Marlin: wording and order of line errors of this firmware",
+    )  # fmt: skip
+    machine.add_argument(
+        "--echo-lines", choices=("echo", "raw"),
+        help="Marlin: print each received line back (echo:<line>, or as is)",
+    )  # fmt: skip
+    machine.add_argument(
+        "--ok-before-resend", action="store_true",
+        help="Marlin: send a rejected line's ok before its Resend",
+    )  # fmt: skip
     faults = parser.add_argument_group("faults")
     faults.add_argument("--corrupt", type=float, default=0.0, metavar="SHARE")
     faults.add_argument("--seed", type=int)
+    faults.add_argument(
+        "--noise-to-firmware", type=float, default=0.0, metavar="SHARE",
+        help="share of bytes garbled on the wire towards the firmware",
+    )  # fmt: skip
+    faults.add_argument(
+        "--noise-to-host", type=float, default=0.0, metavar="SHARE",
+        help="share of bytes garbled on the wire towards the host",
+    )  # fmt: skip
     faults.add_argument("--drop-ok-every", type=int, default=0, metavar="N")
     faults.add_argument("--reset-after", type=int, default=0, metavar="N")
+    faults.add_argument(
+        "--reset-banner", choices=RESET_BANNERS, default="start",
+        help="what the reset-after reset prints (none: a silent reset)",
+    )  # fmt: skip
     faults.add_argument("--busy-after", type=int, default=0, metavar="N")
     faults.add_argument("--busy-seconds", type=float, default=0.0, metavar="S")
     faults.add_argument("--close-after", type=int, default=0, metavar="N")
@@ -164,8 +189,11 @@ def _fault_config(
     config = FaultConfig(
         corrupt=args.corrupt,
         seed=args.seed,
+        noise_to_firmware=args.noise_to_firmware,
+        noise_to_host=args.noise_to_host,
         drop_ok_every=args.drop_ok_every,
         reset_after=args.reset_after,
+        reset_banner=args.reset_banner,
         busy_after=args.busy_after,
         busy_seconds=args.busy_seconds,
         close_after=args.close_after,
@@ -201,6 +229,9 @@ def _firmware(
         advanced_ok=args.advanced_ok,
         emergency_parser=args.emergency_parser,
         keepalive=args.keepalive,
+        dialect=args.dialect,
+        ok_before_resend=args.ok_before_resend,
+        echo_lines=args.echo_lines or "",
         faults=faults,
         on_execute=on_execute,
         now=now,

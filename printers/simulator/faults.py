@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import random
 from dataclasses import dataclass
 
-__all__ = ["FaultConfig", "Faults"]
+__all__ = ["RESET_BANNERS", "FaultConfig", "Faults"]
+
+#: What a reset prints (FaultConfig.reset_banner).
+RESET_BANNERS = ("start", "noise", "none")
 
 #: Replacement bytes for a corrupted line: printable, never a line end, never one
 #: of GRBL's realtime characters, so a corrupted line stays one (wrong) line.
@@ -19,12 +23,20 @@ class FaultConfig:
     #: Share (0..1) of received lines that get one byte replaced.
     corrupt: float = 0.0
     seed: int | None = None
+    #: Share (0..1) of bytes garbled on the wire, towards the firmware and towards
+    #: the host: a byte is replaced (sometimes by a line end) or lost, and a line
+    #: end may be lost (two lines merge).
+    noise_to_firmware: float = 0.0
+    noise_to_host: float = 0.0
     #: Drop the ok of every Nth command.
     drop_ok_every: int = 0
     #: Drop this share (0..1) of oks at random.
     drop_ok_share: float = 0.0
-    #: Reset the firmware once, after N executed commands.
+    #: Reset the firmware once, after N executed commands ...
     reset_after: int = 0
+    #: ... printing this banner: "start" (Marlin's), "noise" (bootloader bytes
+    #: before `start`), "none" (a silent reset: nothing at all).
+    reset_banner: str = "start"
     #: Stay busy (no ok, keepalives) for *busy_seconds* at the Nth command, once.
     busy_after: int = 0
     busy_seconds: float = 0.0
@@ -35,12 +47,14 @@ class FaultConfig:
 
     def validate(self) -> None:
         """Raise ValueError naming the first setting out of range."""
-        for name in ("corrupt", "drop_ok_share"):
+        for name in ("corrupt", "drop_ok_share", "noise_to_firmware", "noise_to_host"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be between 0 and 1")
         for name in ("drop_ok_every", "reset_after", "busy_after", "close_after"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must not be negative")
+        if self.reset_banner not in RESET_BANNERS:
+            raise ValueError(f"reset_banner must be one of {', '.join(RESET_BANNERS)}")
         if self.busy_seconds < 0 or (self.reopen_after or 0) < 0:
             raise ValueError("durations must not be negative")
 
@@ -61,6 +75,8 @@ class Faults:
         self._fired: set[str] = set()
         self.corrupted = 0
         self.dropped_oks = 0
+        #: Bytes garbled on the wire (replaced, lost, line ends lost or made).
+        self.garbled = 0
 
     def corrupt_line(self, line: bytes) -> bytes:
         """*line* (no line end), with one byte replaced for the configured share of lines.
@@ -78,6 +94,39 @@ class Faults:
         replacement = choices[self._random.randrange(len(choices))]
         self.corrupted += 1
         return line[:position] + bytes((replacement,)) + line[position + 1 :]
+
+    def garble(self, data: bytes, share: float, *, one_per_line: bool = False) -> bytes:
+        """*data* as line noise leaves it: each byte hit with probability *share*.
+
+        A hit byte is replaced by a random one (one time in eight by `\n`: the
+        line splits), or lost one time in eight; a hit `\n` is lost (two lines
+        merge). Hits are found by geometric skips, not a draw per byte.
+        *one_per_line* skips to the next line end after a hit: two hits in one
+        line can cancel out in the 8-bit XOR checksum, a weakness of the
+        firmware's framing that no host can make up for.
+        """
+        if share <= 0 or not data:
+            return data
+        out = bytearray(data)
+        rng = self._random
+        position = -1
+        log_miss = math.log1p(-share) if share < 1 else -math.inf
+        while True:
+            position += 1 + int(math.log(1.0 - rng.random()) / log_miss)
+            if position >= len(out):
+                return bytes(out)
+            self.garbled += 1
+            roll = rng.random()
+            if out[position] == 0x0A or roll < 0.125:
+                del out[position]
+                position -= 1
+            elif roll < 0.25:
+                out[position] = 0x0A
+            else:
+                out[position] = (out[position] + rng.randrange(1, 256)) % 256
+            if one_per_line:
+                end = out.find(b"\n", position + 1)
+                position = len(out) if end < 0 else end
 
     def drop_ok(self) -> bool:
         """True when the ok about to be sent should be lost."""

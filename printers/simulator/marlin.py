@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from printers.protocol.checksum import parse_framed_line
 from printers.simulator import _marlin_text as text
+from printers.simulator._marlin_dialect import DIALECTS
 from printers.simulator._marlin_machine import MarlinMachine, words
 from printers.simulator._rx import LineReader
 
@@ -64,6 +65,9 @@ class MarlinFirmware:
         advanced_ok: bool = True,
         emergency_parser: bool = True,
         keepalive: float = 2.0,
+        dialect: str = "marlin",
+        ok_before_resend: bool = False,
+        echo_lines: str = "",
         faults: Faults | None = None,
         on_execute: Callable[[str], None] | None = None,
         now: float = 0.0,
@@ -75,6 +79,13 @@ class MarlinFirmware:
         self.advanced_ok = advanced_ok
         self.emergency_parser = emergency_parser
         self.default_keepalive = keepalive
+        #: Wording and order of line errors (see _marlin_dialect).
+        self.dialect = DIALECTS[dialect]
+        self._ok_order = self.dialect.ok_order
+        if ok_before_resend and self._ok_order != "none":
+            self._ok_order = "before"
+        #: "echo": print `echo:<line>` for each line received; "raw": the line.
+        self.echo_lines = echo_lines
         self.faults = faults
         self.on_execute = on_execute
         self.executed_count = 0
@@ -117,7 +128,7 @@ class MarlinFirmware:
         """Everything printed since the last call."""
         if not self._out:
             return b""
-        data = "".join(self._out).encode("ascii", "replace")
+        data = "".join(self._out).encode("latin-1", "replace")
         self._out.clear()
         return data
 
@@ -136,8 +147,12 @@ class MarlinFirmware:
 
     # -- control (the runner's control socket and faults) ---------------------------
 
-    def reset(self, now: float) -> None:
-        """Power-on or reset: forget everything, print the boot banner."""
+    def reset(self, now: float, banner: str = "start") -> None:
+        """Power-on or reset: forget everything, print the boot banner.
+
+        *banner* "noise" puts bootloader garbage before `start`; "none" prints
+        nothing (a reset the host can only notice by the line numbers).
+        """
         self._clock = now
         self.killed = False
         self._reader.flush()
@@ -159,7 +174,10 @@ class MarlinFirmware:
             now=now,
         )
         self._handlers = self._handler_table()
-        self._print(*text.BOOT)
+        if banner == "noise":
+            self._out.append(text.BOOT_NOISE)
+        if banner != "none":
+            self._print(*text.BOOT)
 
     def halt(self, now: float) -> None:
         """kill(): what M112 does. Nothing works until `reset`."""
@@ -219,7 +237,12 @@ class MarlinFirmware:
         line = line[:MAX_LINE].strip()
         if not line:
             return
+        if self.echo_lines:
+            self._print(f"echo:{line}" if self.echo_lines == "echo" else line)
         number = None
+        if line[0] != "N" and "*" in line and self.dialect.no_line_number:
+            self._line_error(self.dialect.no_line_number, None)
+            return
         if line[0] == "N":
             checked = self._check_line(line)
             if checked is None:
@@ -235,25 +258,37 @@ class MarlinFirmware:
     def _check_line(self, line: str) -> tuple[int, str] | None:
         """Marlin's order: line number, then checksum. Returns (number, command)."""
         number, command, good = parse_framed_line(line)
+        dialect = self.dialect
         expected = number
         if "M110" in line:
             second = re.search(r"N(-?\d+)", line[4:])
             expected = int(second[1]) if second else number
-        elif (number if number is not None else 0) != self._last_n + 1:
-            self._line_error(text.ERR_LINE_NO)
+        elif dialect.sequence and (number or 0) != self._last_n + 1:
+            if (
+                dialect.skip_duplicates
+                and number is not None
+                and number <= self._last_n
+            ):
+                self._print(f"skip {number}", "ok")
+            else:
+                self._line_error(dialect.line_number, number)
             return None
         if not good:
             star = "*" in line
-            self._line_error(text.ERR_CHECKSUM if star else text.ERR_NO_CHECKSUM)
+            self._line_error(dialect.checksum if star else dialect.no_checksum, number)
             return None
         self._last_n = expected if expected is not None else 0
         return (number if number is not None else 0), command
 
-    def _line_error(self, message: str) -> None:
-        """gcode_line_error: report, flush the RX ring, ask for the line again, ok."""
-        self._print(f"Error:{message}{self._last_n}")
+    def _line_error(self, message: str | None, got: int | None) -> None:
+        """gcode_line_error: report, flush the RX ring, ask for the line again, ok.
+
+        A dialect without a message (RepRapFirmware) drops the line silently.
+        """
+        if message is None:
+            return
         self._reader.flush()
-        self._print(f"Resend: {self._last_n + 1}", "ok")
+        self._print(*self.dialect.rejection(message, self._last_n, got, self._ok_order))
 
     def _early_emergency(self, line: str, now: float) -> None:
         """Without the parser, queue.cpp acts on these when the line is read."""
@@ -334,12 +369,14 @@ class MarlinFirmware:
                 n = "" if command.number is None else f" N{command.number}"
                 free = self.bufsize - len(self._queue)
                 reply = f"ok{n} P{self.planner.free} B{free}"
+            elif self.dialect.numbered_ok and command.number is not None:
+                reply = f"ok {command.number}"
         if reply is not None:
             self._out.append(reply + "\n")
         self._queue.popleft()
         self._keepalive_at = None  # idle() between commands restarts its timer
         if self.faults is not None and self.faults.reset_due(self.executed_count):
-            self.reset(now)
+            self.reset(now, self.faults.config.reset_banner)
 
     def _update_busy(self, now: float) -> None:
         """host_keepalive: `busy: processing` every interval while a command blocks."""
@@ -385,6 +422,9 @@ class MarlinFirmware:
             self.keepalive = min(max(given["S"], 0.0), 60.0)
 
     def _m115(self, args: str, now: float) -> None:
+        if self.dialect.name == "reprapfirmware":
+            self._print(text.RRF_INFO)
+            return
         self._print(text.firmware_info(emergency_parser=self.emergency_parser))
 
     def _m155(self, args: str, now: float) -> None:

@@ -221,6 +221,7 @@ class Simulator:
     def _emit(self, now: float) -> None:
         out = self.firmware.data_to_send()
         if out and not self.closed:
+            out = self.faults.garble(out, self.faults.config.noise_to_host)
             self.to_host.put(out, now)
 
     def _deliver(self, now: float) -> None:
@@ -279,6 +280,8 @@ class Simulator:
         if data is None:  # the TCP client hung up
             self._drop_tcp_client()
         elif data:
+            share = self.faults.config.noise_to_firmware
+            data = self.faults.garble(data, share, one_per_line=True)
             self.to_firmware.put(data, now)
 
     def _update_interest(self) -> None:

@@ -128,8 +128,18 @@ def test_m110_sets_the_line_counter_without_a_line_number_check():
 def test_unnumbered_lines_are_accepted_without_checks():
     bench = Bench()
     bench.framed(1, "G1 X1")
-    assert bench.send("G1 X5*99\n") == ["ok P15 B3"]
-    assert bench.executed[-1] == "G1 X5*99"
+    assert bench.send("G1 X5\n") == ["ok P15 B3"]
+    assert bench.executed[-1] == "G1 X5"
+
+
+def test_a_checksum_without_line_number_is_refused_alone():
+    # The tail of a line split by noise: refused (Prusa, Marlin 1.x), not run.
+    bench = Bench()
+    bench.framed(1, "G1 X1")
+    assert bench.send("G1 X5*99\n") == [
+        "Error:No Line Number with checksum, Last Line: 1"
+    ]
+    assert bench.executed[-1] == "G1 X1"
 
 
 def test_lines_longer_than_95_characters_are_cut():
