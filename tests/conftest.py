@@ -62,6 +62,7 @@ def storage(settings: object, tmp_path: Path) -> Path:
     """Job files inside this test's folder, and a fast worker poll."""
     settings.JOB_STORAGE_DIR = tmp_path / "jobs"  # type: ignore[attr-defined]
     settings.PRINTHOST_POLL_SECONDS = 0.02  # type: ignore[attr-defined]
+    settings.PRINTHOST_JOURNAL_DIR = tmp_path / "journal"  # type: ignore[attr-defined]
     return tmp_path / "jobs"
 
 

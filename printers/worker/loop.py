@@ -25,6 +25,7 @@ from printers.protocol.events import LineKind
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
 from printers.transport import SerialTransport, TransportClosed, TransportError
 from printers.worker import spool
+from printers.worker.journal import Entry, Journal
 from printers.worker.lease import Lease, LeaseLost, make_owner
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
@@ -63,6 +64,7 @@ class PrinterWorker(Reactions):
         )
         self.poll_seconds = settings.PRINTHOST_POLL_SECONDS
         self.log = ResponseLog(printer.pk, limit=printer.response_log_limit)
+        self.journal = Journal(printer.pk)
         self.status = PrinterStatus(printer.pk)
         self.requests = RequestPoller(self)
         self.transport: SerialTransport | None = None
@@ -89,7 +91,7 @@ class PrinterWorker(Reactions):
                 f"printer {self.printer.slug} is driven by {self.lease.holder()}"
             )
         self.lease.renew_at = self.clock() + self.lease.seconds / 3
-        for job in spool.recover_interrupted(self.printer.pk):
+        for job in spool.recover_interrupted(self.printer.pk, self.journal.last()):
             self.note(f"job {job.pk} ({job.name}) {job.message}")
             self.waitstart = True
         self.waitstart = self.waitstart or self._was_waiting()
@@ -118,6 +120,7 @@ class PrinterWorker(Reactions):
         self.status.set_state(Printer.State.OFFLINE, "worker stopped")
         self.status.save_if_due(self.clock(), force=True)
         self.log.flush()
+        self.journal.close()
         self.lease.release()
 
     def crash(self, message: str) -> None:
@@ -151,7 +154,16 @@ class PrinterWorker(Reactions):
         if now >= self.next_poll:
             self._housekeeping(now)
             self.pump(now)
+        self.journal_progress()
         self.log.flush_if_due(now)
+
+    def journal_progress(self) -> None:
+        """Append the job's acknowledged line to the journal (every tick that moved it)."""
+        stream = self.host.current_stream
+        if stream is not None and isinstance(stream.ref, int) and stream.type.is_stream:
+            self.journal.record(
+                Entry(stream.ref, stream.acked, stream.sent, stream.bytes_acked)
+            )
 
     def pump(self, now: float) -> None:
         """Steps 4 and 5: advance the streams and write what is ready, in one call."""

@@ -156,6 +156,7 @@ class Reactions:
             self.note(f"job {job.pk} failed: its file is missing")
             return
         self.protocol.reset_line_numbers(now)
+        self.journal.start_job()
         self.host.run_script("start")
         self.host.submit(spool.stream_for(job))
         self.update_state()
