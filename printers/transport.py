@@ -11,6 +11,11 @@ import select
 
 import serial
 
+#: A write that cannot finish in this time (flow control stalled, a wedged USB
+#: adapter) is a lost port. Bounded well under the printer lease, which the worker
+#: loop renews between writes; a healthy port takes milliseconds for a window.
+WRITE_TIMEOUT = 2.0
+
 
 class TransportError(Exception):
     """The port could not be opened or used; the message says which and why."""
@@ -35,7 +40,11 @@ class SerialTransport:
         """Open *url* at *baud*; TransportError with a clear message if it fails."""
         try:
             port = serial.serial_for_url(
-                url, baudrate=baud, timeout=0, write_timeout=10, exclusive=True
+                url,
+                baudrate=baud,
+                timeout=0,
+                write_timeout=WRITE_TIMEOUT,
+                exclusive=True,
             )
         except ValueError as error:
             raise TransportError(f"{url}: bad port settings: {error}") from None

@@ -113,10 +113,12 @@ class Reactions:
                 case hv.StreamStarted(stream=stream) if _is_job(stream):
                     self.note(f"job {stream.ref} ({stream.name}) started")
                 case hv.StreamPaused(stream=stream) if _is_job(stream):
-                    spool.save_progress(stream, state=Job.State.PAUSED)
+                    with self.lease.held():
+                        spool.save_progress(stream, state=Job.State.PAUSED)
                     self.note(f"job {stream.ref} paused")
                 case hv.StreamResumed(stream=stream) if _is_job(stream):
-                    spool.save_progress(stream, state=Job.State.PRINTING)
+                    with self.lease.held():
+                        spool.save_progress(stream, state=Job.State.PRINTING)
                     self.note(f"job {stream.ref} resumed")
                 case hv.StreamEnded(stream=stream):
                     self._on_stream_end(stream)
@@ -130,7 +132,8 @@ class Reactions:
         if not _is_job(stream):
             self.requests.ended(stream)
             return
-        state = spool.finish(stream)
+        with self.lease.held():
+            state = spool.finish(stream)
         self.waitstart = not self.printer.auto_start
         text = f"job {stream.ref} ({stream.name}) {state.label}"
         self.note(f"{text}: {stream.message}" if stream.message else text)
@@ -148,11 +151,13 @@ class Reactions:
             return
         if self.host.current_stream is not None or self.host.script_queue:
             return
-        job = spool.claim_next(self.printer.pk)
+        with self.lease.held():
+            job = spool.claim_next(self.printer.pk)
         if job is None:
             return
         if not job.path.is_file():
-            spool.fail_job(job, f"the job's file {job.file} is missing")
+            with self.lease.held():
+                spool.fail_job(job, f"the job's file {job.file} is missing")
             self.note(f"job {job.pk} failed: its file is missing")
             return
         self.protocol.reset_line_numbers(now)
@@ -164,7 +169,8 @@ class Reactions:
     def save_progress(self: PrinterWorker) -> None:
         stream = self.host.current_stream
         if stream is not None and _is_job(stream):
-            spool.save_progress(stream)
+            with self.lease.held():
+                spool.save_progress(stream)
 
     def poll_temperature(self: PrinterWorker, now: float) -> None:
         """Ask M105 when the firmware does not report temperatures by itself."""
