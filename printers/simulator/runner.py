@@ -280,6 +280,9 @@ class Simulator:
             self._drop_tcp_client()
         elif data:
             self.to_firmware.put(data, now)
+        if isinstance(port, TcpPort) and port.take_dtr_reset():  # RFC 2217 DTR pulse
+            self.to_firmware.clear()
+            self.firmware.reset(now)
 
     def _update_interest(self) -> None:
         """Read only while listening; ask for EVENT_WRITE only while output waits."""

@@ -77,6 +77,10 @@ class PrinterWorker(Reactions):
         self.halted = ""
         self.stay_offline = False
         self.autoreport = False
+        #: Cap:EMERGENCY_PARSER from this connection's M115 (None: not reported).
+        self.emergency_parser: bool | None = None
+        #: An emergency DTR reset is under way: its reset banner keeps the halt.
+        self.expect_reset = False
         self.last_stream_error = ""
         self.next_poll = 0.0
         self.next_progress = 0.0
@@ -264,6 +268,7 @@ class PrinterWorker(Reactions):
         self.host = StreamHost(self.protocol, scripts=self.printer.scripts())
         self.halted = ""
         self.autoreport = False
+        self.emergency_parser, self.expect_reset = None, False
         self.note(f"connected to {self.printer.port} at {self.printer.baud} baud")
         self.hello(now)
         self.update_state()

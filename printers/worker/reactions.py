@@ -74,6 +74,8 @@ class Reactions:
         caps = dict(self.status.fields.get("capabilities", {}))
         caps[name] = enabled
         self.status.update(capabilities=caps)
+        if name == "EMERGENCY_PARSER":
+            self.emergency_parser = enabled
         interval = self.printer.temperature_interval
         if name == "AUTOREPORT_TEMP" and enabled and interval > 0:
             self.autoreport = True
@@ -97,7 +99,10 @@ class Reactions:
             )
         else:
             self.stop_streams(f"the firmware reset ({banner!r})")
-        self.halted = ""
+        if self.expect_reset:  # our emergency DTR pulse: the stop's message stays
+            self.expect_reset = False
+        else:
+            self.halted = ""
         self.hello(now)
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
