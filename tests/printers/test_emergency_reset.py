@@ -116,3 +116,29 @@ def test_emergency_stop_with_parser_does_not_reset_the_board(
         "DTR" in t for t in ResponseLine.objects.values_list("text", flat=True)
     )
     assert not any(t == "start" for t in _notes(printer))
+
+
+def test_emergency_stop_on_a_port_without_dtr_says_the_stop_waits_in_the_queue(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("marlin", "--time-scale", "1", "--no-emergency-parser")
+    printer = make_printer(port=str(sim.link), baud=115200)
+    worker = PrinterWorker(printer)
+    worker.start()
+    make_job(printer, SLOW_MOVES)
+    try:
+        _planner_full(sim, worker)
+        row = emergency_stop(printer, origin="tester")
+        wait_for(
+            lambda: QueuedCommand.objects.get(pk=row.pk).reply, 10, "the reply",
+            step=worker.tick,
+        )  # fmt: skip
+        wait_for(lambda: "M112" in sim.executed(), 30, "M112 to reach the firmware")
+        worker.log.flush()
+    finally:
+        worker.stop()
+
+    reply = QueuedCommand.objects.get(pk=row.pk).reply
+    assert "waits behind the commands the firmware already buffered" in reply
+    assert "could not be reset" in reply
+    assert any("could not be reset" in n for n in _notes(printer))
