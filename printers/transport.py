@@ -8,10 +8,19 @@ from __future__ import annotations
 
 import contextlib
 import select
+import time
 
 import serial
 
 from printers.ports import PortRefused, check_configured_port
+
+#: A write that cannot finish in this time (flow control stalled, a wedged USB
+#: adapter) is a lost port. Bounded well under the printer lease, which the worker
+#: loop renews between writes; a healthy port takes milliseconds for a window.
+WRITE_TIMEOUT = 2.0
+#: How long DTR is dropped for a reset pulse (boards reset on the edge; bootloader
+#: tools hold it about this long).
+DTR_PULSE_SECONDS = 0.1
 
 
 class TransportError(Exception):
@@ -33,7 +42,7 @@ class SerialTransport:
         self._port = port
         try:
             self._fd: int | None = port.fileno()
-        except (AttributeError, NotImplementedError, serial.SerialException):
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
             self._fd = None
 
     @classmethod
@@ -48,8 +57,10 @@ class SerialTransport:
         except PortRefused as error:
             raise PortNotAllowed(f"cannot open port: {error}") from None
         try:
+            # pyserial's RFC 2217 client has no write timeout (it writes to a socket).
+            bound = None if url.startswith("rfc2217://") else WRITE_TIMEOUT
             port = serial.serial_for_url(
-                url, baudrate=baud, timeout=0, write_timeout=10, exclusive=True
+                url, baudrate=baud, timeout=0, write_timeout=bound, exclusive=True
             )
         except ValueError as error:
             raise TransportError(f"{url}: bad port settings: {error}") from None
@@ -68,8 +79,11 @@ class SerialTransport:
                 if not data:
                     raise TransportClosed(f"{self._port.port}: port closed")
                 return data
+            # No file descriptor (rfc2217://): wait for one byte, then take the rest.
             self._port.timeout = max(0.001, min(timeout, 0.05))
-            return self._port.read(65536)
+            first = self._port.read(1)
+            waiting = self._port.in_waiting if first else 0
+            return first + (self._port.read(waiting) if waiting else b"")
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: {error}") from None
 
@@ -81,6 +95,19 @@ class SerialTransport:
             self._port.write(data)
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: write failed: {error}") from None
+
+    def pulse_dtr(self) -> str:
+        """Drop and raise DTR (resets the usual USB boards); returns "" or why not."""
+        url = str(self._port.port or "")
+        if url.startswith(("socket://", "loop://")):
+            return f"{url.split(':', 1)[0]}:// has no DTR line"
+        try:
+            self._port.dtr = False
+            time.sleep(DTR_PULSE_SECONDS)
+            self._port.dtr = True
+        except (serial.SerialException, OSError, ValueError) as error:
+            return f"this port has no DTR line to pulse ({error})"
+        return ""
 
     def close(self) -> None:
         with contextlib.suppress(serial.SerialException, OSError):

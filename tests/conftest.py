@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -63,6 +64,7 @@ def storage(settings: object, tmp_path: Path) -> Path:
     # The simulators' pty links are here: printers.ports lets a worker open them.
     settings.DATA_DIR = tmp_path  # type: ignore[attr-defined]
     settings.PRINTHOST_POLL_SECONDS = 0.02  # type: ignore[attr-defined]
+    settings.PRINTHOST_JOURNAL_DIR = tmp_path / "journal"  # type: ignore[attr-defined]
     return tmp_path / "jobs"
 
 
@@ -116,3 +118,37 @@ def job_lines(sim: Sim) -> list[str]:
 def fast_password_hashing(settings: object) -> None:
     """Tests create many users; a deliberately slow hash would dominate their time."""
     settings.PASSWORD_HASHERS = ["django.contrib.auth.hashers.MD5PasswordHasher"]  # type: ignore[attr-defined]
+
+
+def _services_required() -> bool:
+    return os.environ.get("PRINTHOST_REQUIRE_SERVICES") == "1"
+
+
+def pytest_terminal_summary(
+    terminalreporter: pytest.TerminalReporter, exitstatus: int, config: pytest.Config
+) -> None:
+    """In CI (PRINTHOST_REQUIRE_SERVICES=1) a skipped test is a failed run: list them."""
+    if not _services_required():
+        return
+    skipped = terminalreporter.stats.get("skipped", [])
+    if not skipped:
+        return
+    terminalreporter.section("skips are failures in CI", red=True)
+    for report in skipped:
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else ""
+        terminalreporter.line(f"SKIPPED {report.nodeid}: {reason}", red=True)
+    terminalreporter.line(
+        f"{len(skipped)} test(s) skipped with PRINTHOST_REQUIRE_SERVICES=1;"
+        " CI has every service and module, so a skip hides a test that did not run",
+        red=True,
+    )
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Turn a CI run that skipped anything into a failing exit status."""
+    if not _services_required():
+        return
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    skipped = reporter.stats.get("skipped", []) if reporter is not None else []
+    if skipped and exitstatus == pytest.ExitCode.OK:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

@@ -6,6 +6,7 @@ simulators and the workers. Tests talk to it over real HTTP / websocket / TCP.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import signal
@@ -17,6 +18,7 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -33,9 +35,21 @@ def services_required() -> bool:
     return os.environ.get("PRINTHOST_REQUIRE_SERVICES") == "1"
 
 
+def import_or_skip(name: str) -> ModuleType:
+    """*name*, or skip with a reason locally; in CI a missing module is an error."""
+    try:
+        return importlib.import_module(name)
+    except ImportError as error:
+        if services_required():
+            raise
+        pytest.skip(
+            f"{name} is not installed ({error}); pip install -r requirements-dev.txt"
+        )
+
+
 def postgres_url() -> str:
     """A fresh database on the local PostgreSQL, or skip (fail in CI) if there is none."""
-    psycopg = pytest.importorskip("psycopg")
+    psycopg = import_or_skip("psycopg")
     name = f"printhost_test_{uuid.uuid4().hex[:8]}"
     try:
         with psycopg.connect(
@@ -52,7 +66,7 @@ def postgres_url() -> str:
 
 def redis_url(db: int = 0) -> str:
     """The local Redis, or skip (fail in CI) if there is none."""
-    redis = pytest.importorskip("redis")
+    redis = import_or_skip("redis")
     url = f"redis://127.0.0.1:6379/{db}"
     try:
         redis.Redis.from_url(url, socket_connect_timeout=3).ping()

@@ -1,4 +1,11 @@
-"""The simulator's endpoints: a pty behind a symlink, one TCP client, the control socket."""
+"""The simulator's endpoints: a pty behind a symlink, one TCP client, the control socket.
+
+The TCP port also speaks RFC 2217 (serial over telnet) to a client that opens with a
+telnet command (`rfc2217://` in pyserial), so a host can drive the modem lines: a
+DTR pulse resets the board, as it does on the usual USB boards (Arduino Mega/RAMPS
+and most others). A plain `socket://` client never sends 0xFF first, so it gets raw
+bytes as before.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +14,8 @@ import os
 import socket
 import tty
 from typing import TYPE_CHECKING
+
+from serial.rfc2217 import IAC, PortManager
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -102,8 +111,50 @@ def _replace_link(link: Path, target: str) -> None:
         raise SetupError(f"{link}: cannot create the link: {error.strerror}") from None
 
 
+class _ModemLines:
+    """The serial port PortManager drives: settings are kept, DTR pulses counted."""
+
+    def __init__(self) -> None:
+        self.baudrate, self.bytesize, self.parity, self.stopbits = 115200, 8, "N", 1
+        self.xonxoff = self.rtscts = self.break_condition = False
+        self.rts = True
+        self.cts = self.dsr = self.ri = self.cd = False
+        self._dtr = True
+        self.resets = 0
+
+    @property
+    def dtr(self) -> bool:
+        return self._dtr
+
+    @dtr.setter
+    def dtr(self, value: bool) -> None:
+        """DTR asserted after it was dropped: the auto-reset capacitor resets the MCU."""
+        if value and not self._dtr:
+            self.resets += 1
+        self._dtr = value
+
+    def reset_input_buffer(self) -> None:
+        pass
+
+    def reset_output_buffer(self) -> None:
+        pass
+
+
+class _Raw:
+    """PortManager's telnet answers go out unescaped, in order with the data."""
+
+    def __init__(self, port: TcpPort) -> None:
+        self.port = port
+
+    def write(self, data: bytes) -> None:
+        _Stream.queue(self.port, data)
+
+
 class TcpPort(_Stream):
-    """A TCP listener serving one client at a time; a new client replaces the old."""
+    """A TCP listener serving one client at a time; a new client replaces the old.
+
+    A client whose first byte is telnet's IAC gets RFC 2217 (see the module doc).
+    """
 
     def __init__(self, host: str, port: int) -> None:
         super().__init__()
@@ -114,6 +165,9 @@ class TcpPort(_Stream):
         self.listener.settimeout(0.0)
         self.client: socket.socket | None = None
         self.accepting = True
+        self._first = True
+        self._lines: _ModemLines | None = None
+        self._rfc2217: PortManager | None = None
 
     @property
     def address(self) -> str:
@@ -141,6 +195,29 @@ class TcpPort(_Stream):
             self.client.close()
         self.client = None
         self.pending.clear()
+        self._first, self._lines, self._rfc2217 = True, None, None
+
+    def queue(self, data: bytes) -> None:
+        if self._rfc2217 is not None:
+            data = b"".join(self._rfc2217.escape(data))
+        super().queue(data)
+
+    def take_dtr_reset(self) -> bool:
+        """True once for each DTR pulse the RFC 2217 client made (the board resets)."""
+        if self._lines is None or not self._lines.resets:
+            return False
+        self._lines.resets -= 1
+        return True
+
+    def _filter(self, data: bytes) -> bytes:
+        if self._first:
+            self._first = False
+            if data[:1] == IAC:
+                self._lines = _ModemLines()
+                self._rfc2217 = PortManager(self._lines, _Raw(self))
+        if self._rfc2217 is None:
+            return data
+        return b"".join(self._rfc2217.filter(data))
 
     def read(self) -> bytes | None:
         """Bytes from the client; None when it hung up."""
@@ -150,7 +227,7 @@ class TcpPort(_Stream):
             return b""
         except OSError:
             return None
-        return data or None
+        return self._filter(data) if data else None
 
     def flush(self) -> None:
         try:

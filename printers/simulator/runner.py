@@ -283,6 +283,9 @@ class Simulator:
             share = self.faults.config.noise_to_firmware
             data = self.faults.garble(data, share, one_per_line=True)
             self.to_firmware.put(data, now)
+        if isinstance(port, TcpPort) and port.take_dtr_reset():  # RFC 2217 DTR pulse
+            self.to_firmware.clear()
+            self.firmware.reset(now)
 
     def _update_interest(self) -> None:
         """Read only while listening; ask for EVENT_WRITE only while output waits."""

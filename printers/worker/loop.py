@@ -25,6 +25,7 @@ from printers.protocol.events import LineKind
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
 from printers.transport import SerialTransport, TransportClosed, TransportError
 from printers.worker import spool
+from printers.worker.journal import Entry, Journal
 from printers.worker.lease import Lease, LeaseLost, make_owner
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
@@ -62,8 +63,11 @@ class PrinterWorker(Reactions):
             printer.pk, owner or make_owner(), settings.PRINTHOST_LEASE_SECONDS
         )
         self.poll_seconds = settings.PRINTHOST_POLL_SECONDS
-        self.log = ResponseLog(printer.pk, limit=printer.response_log_limit)
-        self.status = PrinterStatus(printer.pk)
+        self.log = ResponseLog(
+            printer.pk, limit=printer.response_log_limit, lease=self.lease
+        )
+        self.journal = Journal(printer.pk)
+        self.status = PrinterStatus(printer.pk, lease=self.lease)
         self.requests = RequestPoller(self)
         self.transport: SerialTransport | None = None
         self.protocol: LinkProtocol = protocol_for(self.config)
@@ -73,6 +77,10 @@ class PrinterWorker(Reactions):
         self.halted = ""
         self.stay_offline = False
         self.autoreport = False
+        #: Cap:EMERGENCY_PARSER from this connection's M115 (None: not reported).
+        self.emergency_parser: bool | None = None
+        #: An emergency DTR reset is under way: its reset banner keeps the halt.
+        self.expect_reset = False
         self.last_stream_error = ""
         self.next_poll = 0.0
         self.next_progress = 0.0
@@ -84,12 +92,10 @@ class PrinterWorker(Reactions):
 
     def start(self) -> None:
         """Claim the printer and settle what a previous worker left behind."""
-        if not self.lease.claim():
-            raise LeaseLost(
-                f"printer {self.printer.slug} is driven by {self.lease.holder()}"
-            )
-        self.lease.renew_at = self.clock() + self.lease.seconds / 3
-        for job in spool.recover_interrupted(self.printer.pk):
+        self.lease.take(self.clock())
+        with self.lease.held():
+            recovered = spool.recover_interrupted(self.printer.pk, self.journal.last())
+        for job in recovered:
             self.note(f"job {job.pk} ({job.name}) {job.message}")
             self.waitstart = True
         self.waitstart = self.waitstart or self._was_waiting()
@@ -102,6 +108,9 @@ class PrinterWorker(Reactions):
         try:
             while not self.shutdown:
                 self.tick()
+        except LeaseLost as error:
+            self.abandon(str(error))
+            raise
         except Exception as error:
             logger.exception("worker for %s crashed", self.printer.slug)
             self.crash(f"internal error in the worker: {error!r}")
@@ -111,20 +120,45 @@ class PrinterWorker(Reactions):
 
     def stop(self) -> None:
         """Save everything, close the port, give the printer back."""
-        stream = self.host.current_stream
-        if stream is not None and stream.ref is not None:
-            self.stop_streams("the worker was stopped mid-job", outcome="interrupted")
-        self._close()
-        self.status.set_state(Printer.State.OFFLINE, "worker stopped")
-        self.status.save_if_due(self.clock(), force=True)
-        self.log.flush()
+        if self.lease.lost:
+            return
+        try:
+            stream = self.host.current_stream
+            if stream is not None and stream.ref is not None:
+                self.stop_streams(
+                    "the worker was stopped mid-job", outcome="interrupted"
+                )
+            self._close()
+            self.status.set_state(Printer.State.OFFLINE, "worker stopped")
+            self.status.save_if_due(self.clock(), force=True)
+            self.log.flush()
+        except LeaseLost as error:
+            self.abandon(str(error))
+            return
+        self.journal.close()
         self.lease.release()
 
     def crash(self, message: str) -> None:
         """Klipper's instinct: on a bug, stop streaming and record why."""
-        self.stop_streams(message)
-        self.halted = message
-        self.update_state()
+        try:
+            self.stop_streams(message)
+            self.halted = message
+            self.update_state()
+        except LeaseLost as error:
+            self.abandon(str(error))
+
+    def abandon(self, reason: str) -> None:
+        """The lease is gone: let go of the port at once and write nothing more.
+
+        The new holder owns the printer's rows, jobs and journal now; whatever this
+        worker still had unsaved is dropped, not written over theirs.
+        """
+        self.lease.lost = True
+        logger.error("%s: %s; stopping without writing", self.printer.slug, reason)
+        self._close()
+        self.journal.close()
+        self.log.discard()
+        self.shutdown = True
 
     # -- the loop ----------------------------------------------------------------
 
@@ -134,6 +168,7 @@ class PrinterWorker(Reactions):
         if self.transport is None:
             self._tick_offline(now)
             return
+        self.lease.ensure(now)
         try:
             data = self.transport.read(self._wait_time(now))
         except TransportClosed as error:
@@ -151,7 +186,16 @@ class PrinterWorker(Reactions):
         if now >= self.next_poll:
             self._housekeeping(now)
             self.pump(now)
+        self.journal_progress()
         self.log.flush_if_due(now)
+
+    def journal_progress(self) -> None:
+        """Append the job's acknowledged line to the journal (every tick that moved it)."""
+        stream = self.host.current_stream
+        if stream is not None and isinstance(stream.ref, int) and stream.type.is_stream:
+            self.journal.record(
+                Entry(stream.ref, stream.acked, stream.sent, stream.bytes_acked)
+            )
 
     def pump(self, now: float) -> None:
         """Steps 4 and 5: advance the streams and write what is ready, in one call."""
@@ -162,6 +206,7 @@ class PrinterWorker(Reactions):
         self.handle_host_events(now)
         data = self.protocol.data_to_send()
         if data:
+            self.lease.ensure(now)
             try:
                 self.transport.write(data)
             except TransportClosed as error:
@@ -173,6 +218,7 @@ class PrinterWorker(Reactions):
         self.next_poll = now + self.poll_seconds
         close_old_connections()
         self.lease.renew_if_due(now)
+        self.lease.check()
         self.requests.poll(now)
         self.maybe_claim_job(now)
         self.poll_temperature(now)
@@ -190,6 +236,7 @@ class PrinterWorker(Reactions):
             self.next_poll = now + self.poll_seconds
             close_old_connections()
             self.lease.renew_if_due(now)
+            self.lease.check()
             self.requests.poll(now)
             self.status.save_if_due(now)
             self.log.flush_if_due(now)
@@ -210,6 +257,7 @@ class PrinterWorker(Reactions):
     def connect(self, now: float) -> None:
         """Open the port; on failure say why and retry later with backoff."""
         self.status.set_state(Printer.State.CONNECTING, f"opening {self.printer.port}")
+        self.lease.ensure(now)
         try:
             self.transport = SerialTransport.open(self.printer.port, self.printer.baud)
         except TransportError as error:
@@ -220,6 +268,7 @@ class PrinterWorker(Reactions):
         self.host = StreamHost(self.protocol, scripts=self.printer.scripts())
         self.halted = ""
         self.autoreport = False
+        self.emergency_parser, self.expect_reset = None, False
         self.note(f"connected to {self.printer.port} at {self.printer.baud} baud")
         self.hello(now)
         self.update_state()

@@ -84,6 +84,8 @@ class Reactions:
 
     def _on_capability(self: PrinterWorker, name: str, *, enabled: bool) -> None:
         self._merge_capabilities({name: enabled})
+        if name == "EMERGENCY_PARSER":
+            self.emergency_parser = enabled
         interval = self.printer.temperature_interval
         if name == "AUTOREPORT_TEMP" and enabled and interval > 0:
             self.autoreport = True
@@ -167,7 +169,11 @@ class Reactions:
         else:
             self.stop_streams(f"the firmware reset ({banner!r})")
         self._alarm_before_reset = self.grbl_alarm
-        self.halted = self.grbl_alarm = ""
+        self.grbl_alarm = ""
+        if self.expect_reset:  # our emergency DTR pulse: the stop's message stays
+            self.expect_reset = False
+        else:
+            self.halted = ""
         status = self.status.fields.get("machine_status", {})
         if status.get("check_mode"):  # a reset ends GRBL's check mode
             self.status.update(machine_status={**status, "check_mode": False})
@@ -187,10 +193,12 @@ class Reactions:
                     dry = " as a dry run (GRBL check mode)" if self._dry_run() else ""
                     self.note(f"job {stream.ref} ({stream.name}) started{dry}")
                 case hv.StreamPaused(stream=stream) if _is_job(stream):
-                    spool.save_progress(stream, state=Job.State.PAUSED)
+                    with self.lease.held():
+                        spool.save_progress(stream, state=Job.State.PAUSED)
                     self.note(f"job {stream.ref} paused")
                 case hv.StreamResumed(stream=stream) if _is_job(stream):
-                    spool.save_progress(stream, state=Job.State.PRINTING)
+                    with self.lease.held():
+                        spool.save_progress(stream, state=Job.State.PRINTING)
                     self.note(f"job {stream.ref} resumed")
                 case hv.StreamEnded(stream=stream):
                     self._on_stream_end(stream)
@@ -210,7 +218,8 @@ class Reactions:
             stream.message = (
                 "dry run in GRBL check mode: every line checked, nothing moved"
             )
-        state = spool.finish(stream)
+        with self.lease.held():
+            state = spool.finish(stream)
         self.waitstart = not self.printer.auto_start
         text = f"job {stream.ref} ({stream.name}) {state.label}"
         self.note(f"{text}: {stream.message}" if stream.message else text)
@@ -228,14 +237,17 @@ class Reactions:
             return
         if self.host.current_stream is not None or self.host.script_queue:
             return
-        job = spool.claim_next(self.printer.pk)
+        with self.lease.held():
+            job = spool.claim_next(self.printer.pk)
         if job is None:
             return
         if not job.path.is_file():
-            spool.fail_job(job, f"the job's file {job.file} is missing")
+            with self.lease.held():
+                spool.fail_job(job, f"the job's file {job.file} is missing")
             self.note(f"job {job.pk} failed: its file is missing")
             return
         self.protocol.reset_line_numbers(now)
+        self.journal.start_job()
         self.host.run_script("start")
         self.host.submit(spool.stream_for(job))
         self.update_state()
@@ -243,7 +255,8 @@ class Reactions:
     def save_progress(self: PrinterWorker) -> None:
         stream = self.host.current_stream
         if stream is not None and _is_job(stream):
-            spool.save_progress(stream)
+            with self.lease.held():
+                spool.save_progress(stream)
 
     def poll_temperature(self: PrinterWorker, now: float) -> None:
         """Ask M105 when the firmware does not report temperatures by itself."""

@@ -17,6 +17,7 @@ from printers.streaming.esp import (
     esp_reply,
     parse_esp,
 )
+from printers.worker.emergency import after_m112
 
 if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
@@ -95,10 +96,12 @@ class RequestPoller:
         for text in texts:
             worker.protocol.send_emergency(text, now)
         worker.pump(now)
+        path = ""
         if full_stop:
             who = f" by {row.origin}" if row.origin else ""
+            path = after_m112(worker, who)
             worker.stop_streams(f"emergency stop{who}", outcome="aborted", note=True)
-        self._finish(row, "ok")
+        self._finish(row, f"ok: {path}" if path else "ok")
 
     def _action(self, action: str, origin: str) -> str:
         worker = self.worker

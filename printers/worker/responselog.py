@@ -12,7 +12,10 @@ from printers import broadcast
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
+    from contextlib import AbstractContextManager
     from datetime import datetime
+
+    from printers.worker.lease import Lease
 
 #: Flush at least this often (s) and whenever this many lines wait.
 FLUSH_SECONDS = 0.25
@@ -28,8 +31,12 @@ class ResponseLog:
     next id is simply one past the highest stored.
     """
 
-    def __init__(self, printer_id: int, *, limit: int) -> None:
+    def __init__(
+        self, printer_id: int, *, limit: int, lease: Lease | None = None
+    ) -> None:
         self.printer_id = printer_id
+        #: Lines are stored only while this lease is held (None: unconditional).
+        self.lease = lease
         self.limit = limit
         last = ResponseLine.objects.filter(printer_id=printer_id).aggregate(
             last=Max("seq")
@@ -76,7 +83,7 @@ class ResponseLog:
             f"INSERT INTO {connection.ops.quote_name(table)} "
             "(printer_id, seq, time, text, kind) VALUES (%s, %s, %s, %s, %s)"
         )
-        with transaction.atomic(), connection.cursor() as cursor:
+        with self._held(), connection.cursor() as cursor:
             cursor.executemany(sql, rows)
         # Published after the commit: a client can always read a gap from the table.
         broadcast.publisher().lines(self.printer_id, batch)
@@ -86,7 +93,17 @@ class ResponseLog:
         floor = self.last_id - self.limit
         if floor <= 0:
             return 0
-        deleted, _ = ResponseLine.objects.filter(
-            printer_id=self.printer_id, seq__lte=floor
-        ).delete()
+        with self._held():
+            deleted, _ = ResponseLine.objects.filter(
+                printer_id=self.printer_id, seq__lte=floor
+            ).delete()
         return deleted
+
+    def discard(self) -> None:
+        """Forget unsaved lines (a worker that lost its lease writes nothing more)."""
+        self._buffer.clear()
+
+    def _held(self) -> AbstractContextManager[None]:
+        if self.lease is None:
+            return transaction.atomic()
+        return self.lease.held()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from django.db.models import F
 from django.utils import timezone
 
@@ -9,6 +11,9 @@ from jobs.gcode import iter_commands
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
 from printers.streaming import Line, Stream, StreamType
+
+if TYPE_CHECKING:
+    from printers.worker.journal import Entry
 
 _OUTCOME_STATE = {
     "completed": Job.State.COMPLETED,
@@ -18,19 +23,32 @@ _OUTCOME_STATE = {
 }
 
 
-def recover_interrupted(printer_id: int) -> list[Job]:
-    """Mark jobs a dead worker left printing as INTERRUPTED, at their last saved line.
+def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list[Job]:
+    """Mark jobs a dead worker left printing as INTERRUPTED, at their last acked line.
 
-    They are never restarted by themselves: a half-printed part is on the bed.
+    The journal's entry (written on every ack batch) wins over the database's
+    progress (saved once a second). They are never restarted by themselves: a
+    half-printed part is on the bed.
     """
     jobs = list(Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES))
     for job in jobs:
+        progress: dict[str, int] = {}
+        if journaled is not None and journaled.job_id == job.pk:
+            job.lines_acked = journaled.acked
+            progress = {
+                "lines_acked": journaled.acked,
+                "lines_sent": journaled.sent,
+                "bytes_acked": journaled.bytes_acked,
+            }
         job.message = (
             f"interrupted: the worker stopped at line {job.lines_acked} of "
             f"{job.line_count}; not restarted (clear the bed and requeue it)"
         )
         Job.objects.filter(pk=job.pk, state__in=ACTIVE_STATES).update(
-            state=Job.State.INTERRUPTED, message=job.message, finished_at=timezone.now()
+            state=Job.State.INTERRUPTED,
+            message=job.message,
+            finished_at=timezone.now(),
+            **progress,
         )
         broadcast.publisher().job(job.pk)
     return jobs

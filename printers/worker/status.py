@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from datetime import timedelta
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from django.utils import timezone
 
 from printers import broadcast
 from printers.models import Printer, TemperatureSample
+
+if TYPE_CHECKING:
+    from printers.worker.lease import Lease
 
 #: Temperatures and machine status are saved at most this often (s).
 SAVE_SECONDS = 1.0
@@ -22,8 +26,10 @@ PRUNE_SECONDS = 600.0
 class PrinterStatus:
     """Collects what the worker learns and writes it to the printer row, throttled."""
 
-    def __init__(self, printer_id: int) -> None:
+    def __init__(self, printer_id: int, lease: Lease | None = None) -> None:
         self.printer_id = printer_id
+        #: Saves commit only while this lease is held (None: unconditional).
+        self.lease = lease
         self.state = Printer.State.OFFLINE
         self.message = ""
         self.fields: dict[str, Any] = {}
@@ -56,10 +62,11 @@ class PrinterStatus:
         values.update(
             state=self.state, state_message=self.message, worker_seen_at=timezone.now()
         )
-        Printer.objects.filter(pk=self.printer_id).update(**values)
+        with self.lease.held() if self.lease else nullcontext():
+            Printer.objects.filter(pk=self.printer_id).update(**values)
+            if "temperatures" in values:
+                self.sample(now, values["temperatures"])
         broadcast.publisher().status(self.printer_id, values)
-        if "temperatures" in values:
-            self.sample(now, values["temperatures"])
         self._dirty.clear()
         self._saved_state = (self.state, self.message)
         self._save_at = now + SAVE_SECONDS

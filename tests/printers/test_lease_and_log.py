@@ -68,3 +68,20 @@ def test_log_retention_keeps_the_newest_lines(make_printer):
         ResponseLine.objects.filter(printer=printer).values_list("seq", flat=True)
     )
     assert kept == list(range(16, 26))
+
+
+def test_log_lines_are_not_stored_once_the_lease_was_taken_over(make_printer):
+    printer = make_printer()
+    lease = Lease(printer.pk, "a:1:x", 10)
+    lease.take(now=0.0)
+    log = ResponseLog(printer.pk, limit=100, lease=lease)
+    log.add("before", LineKind.RESPONSE)
+    log.flush()
+    Printer.objects.filter(pk=printer.pk).update(lease_owner="b:2:y")
+    log.add("after", LineKind.RESPONSE)
+
+    with pytest.raises(LeaseLost, match="b:2:y"):
+        log.flush()
+    assert list(ResponseLine.objects.values_list("text", flat=True)) == ["before"]
+    with pytest.raises(LeaseLost):
+        lease.renew_if_due(now=100.0)

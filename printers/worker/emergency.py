@@ -1,0 +1,50 @@
+"""What an M112 needs beyond the line itself, and which path the stop took.
+
+Marlin acts on M112 the moment it arrives only with its emergency parser
+(`Cap:EMERGENCY_PARSER:1` in the M115 reply). Stock builds have it off: there M112
+waits in the RX buffer behind every command already buffered, and the planner runs
+its moves first. Then the only fast stop left to the host is resetting the board,
+which the usual USB boards (Arduino Mega/RAMPS, most 8-bit and many 32-bit boards)
+do on a DTR pulse: the planner and buffers are gone without running.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from printers.worker.loop import PrinterWorker
+
+
+def after_m112(worker: PrinterWorker, who: str) -> str:
+    """Called once M112 is on the wire: reset the board if needed; returns the path.
+
+    The path goes into the request's reply, a response-log note and (when the
+    board was reset) the printer's state message.
+    """
+    if worker.printer.is_grbl or worker.transport is None:
+        return ""
+    if worker.emergency_parser:
+        path = "M112 sent; the firmware's emergency parser acts on it at once"
+        worker.note(f"emergency stop{who}: {path}")
+        return path
+    why = (
+        "the firmware has no emergency parser"
+        if worker.emergency_parser is False
+        else "the firmware did not report an emergency parser"
+    )
+    error = worker.transport.pulse_dtr()
+    if error:
+        path = (
+            f"M112 sent, but {why}, so it waits behind the commands the firmware "
+            f"already buffered; the board could not be reset: {error}"
+        )
+    else:
+        worker.expect_reset = True
+        path = (
+            f"M112 sent and the board reset by a DTR pulse ({why}); "
+            "its buffered moves were dropped"
+        )
+    worker.note(f"emergency stop{who}: {path}")
+    worker.halted = f"emergency stop{who}: {path}; home before printing again"
+    return path

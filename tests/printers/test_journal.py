@@ -1,0 +1,99 @@
+"""The job journal: a SIGKILLed worker's job resumes its record at the exact acked line."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+
+from printers.sample_gcode import commands_of, segments
+from printers.worker.journal import Entry, Journal
+from tests.conftest import HOST_COMMANDS, ROOT, wait_for
+from tests.hosts import Host
+
+pytestmark = pytest.mark.slow
+
+
+def test_journal_keeps_the_last_complete_entry_and_ignores_a_torn_line(tmp_path):
+    journal = Journal(7, tmp_path)
+    journal.start_job()
+    journal.record(Entry(3, 10, 14, 200))
+    journal.record(Entry(3, 12, 16, 240))
+    journal.close()
+    with journal.path.open("a") as file:
+        file.write("3 99 1")  # the process died in the middle of a write
+
+    assert Journal(7, tmp_path).last() == Entry(3, 12, 16, 240)
+
+
+def _worker(host: Host) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "manage.py", "run_printer", "p0"], cwd=ROOT, env=host.env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def _lease_expired(host: Host) -> bool:
+    (expires,) = host.query("SELECT lease_expires_at FROM printers_printer")[0]
+    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
+    return expires is None or str(expires)[:26] < now
+
+
+def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
+    tmp_path: Path, sim_factory
+):
+    sim = sim_factory("marlin", "--time-scale", "0", "--baud", "250000")
+    host = Host(tmp_path)
+    host.env["PRINTHOST_LEASE_SECONDS"] = "2"
+    host.manage("migrate", "--noinput")
+    host.shell(
+        "from printers.models import Printer; Printer.objects.create(name='P0', "
+        f"slug='p0', port={str(sim.link)!r}, baud=250000, temperature_interval=0)"
+    )
+    text = segments(20000)
+    (tmp_path / "job.gcode").write_text(text)
+    host.manage("add_job", "p0", str(tmp_path / "job.gcode"))
+    journal = Journal(1, tmp_path / "journal")
+    journaled = lambda: (journal.last() or Entry(0, 0, 0, 0)).acked
+    ran = lambda: [c for c in sim.executed() if not c.startswith(HOST_COMMANDS)]
+
+    first = _worker(host)
+    try:
+        wait_for(lambda: journaled() > 500, 60, "the job to be well under way")
+        # The firmware stops finishing commands (no more oks); the worker reads the
+        # oks already sent, and is killed the moment its journal has the last one.
+        assert sim.control("busy 600") == "ok"
+        wait_for(
+            lambda: journaled() == len(ran()) and journaled() > 0, 30,
+            "the worker to journal every ok the firmware sent",
+        )  # fmt: skip
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=30)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    executed = len(ran())
+    saved = host.query("SELECT lines_acked FROM jobs_job")[0][0]
+
+    wait_for(lambda: _lease_expired(host), 30, "the dead worker's lease to expire")
+    second = _worker(host)
+    try:
+        state = lambda: host.query("SELECT state, lines_acked, message FROM jobs_job")[
+            0
+        ]
+        wait_for(lambda: state()[0] == "interrupted", 60, "the job to be interrupted")
+    finally:
+        second.send_signal(signal.SIGTERM)
+        second.wait(timeout=60)
+
+    job_state, lines_acked, message = state()
+    print(f"executed {executed}, journaled {journaled()}, saved in the DB {saved}")
+    assert ran() == commands_of(text)[:executed], "a line was repeated or skipped"
+    assert lines_acked == executed
+    assert f"at line {executed} of 20003" in message
+    assert os.path.getsize(journal.path) < 1 << 21
