@@ -24,8 +24,10 @@ SLOW_MOVES = "G21\nG90\nM83\n" + "".join(
 )
 
 
-def _printer_on_rfc2217(sim_factory, make_printer, *parser: str) -> tuple:
+def _printer_on_rfc2217(settings, sim_factory, make_printer, *parser: str) -> tuple:
     sim = sim_factory("marlin", "--time-scale", "1", "--tcp", "127.0.0.1:0", *parser)
+    # A network port is opened only to a listed host (printers/ports.py).
+    settings.PRINTHOST_PORT_HOSTS = [sim.tcp]
     printer = make_printer(port=f"rfc2217://{sim.tcp}", baud=115200)
     worker = PrinterWorker(printer)
     worker.start()
@@ -50,10 +52,10 @@ def _notes(printer: Printer) -> list[str]:
 
 
 def test_emergency_stop_without_parser_resets_the_board_by_dtr(
-    sim_factory, make_printer, make_job
+    settings, sim_factory, make_printer, make_job
 ):
     sim, printer, worker = _printer_on_rfc2217(
-        sim_factory, make_printer, "--no-emergency-parser"
+        settings, sim_factory, make_printer, "--no-emergency-parser"
     )
     job = make_job(printer, SLOW_MOVES)
     try:
@@ -91,9 +93,9 @@ def test_emergency_stop_without_parser_resets_the_board_by_dtr(
 
 
 def test_emergency_stop_with_parser_does_not_reset_the_board(
-    sim_factory, make_printer, make_job
+    settings, sim_factory, make_printer, make_job
 ):
-    sim, printer, worker = _printer_on_rfc2217(sim_factory, make_printer)
+    sim, printer, worker = _printer_on_rfc2217(settings, sim_factory, make_printer)
     make_job(printer, SLOW_MOVES)
     try:
         _planner_full(sim, worker)
