@@ -23,7 +23,12 @@ from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
-from printers.transport import SerialTransport, TransportClosed, TransportError
+from printers.transport import (
+    PortNotAllowed,
+    SerialTransport,
+    TransportClosed,
+    TransportError,
+)
 from printers.worker import spool
 from printers.worker.journal import Entry, Journal
 from printers.worker.lease import Lease, LeaseLost, make_owner
@@ -260,6 +265,14 @@ class PrinterWorker(Reactions):
         self.lease.ensure(now)
         try:
             self.transport = SerialTransport.open(self.printer.port, self.printer.baud)
+        except PortNotAllowed as error:
+            # Retrying cannot help: the port stays closed until a superuser fixes it
+            # (runhost restarts a worker whose printer changed) or asks to reconnect.
+            self.stay_offline = True
+            logger.error("%s: %s", self.printer.slug, error)
+            self.note(str(error))
+            self.status.set_state(Printer.State.ERROR, str(error))
+            return
         except TransportError as error:
             self._retry_later(now, str(error))
             return

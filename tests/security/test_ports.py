@@ -224,11 +224,14 @@ def test_worker_never_opens_a_bad_port_already_in_the_database(
         for _ in range(3):
             worker.tick()
         worker.status.save_if_due(worker.clock(), force=True)
+        printer.refresh_from_db()
     finally:
         worker.stop()
 
     assert worker.transport is None
     assert not spied.exists()
+    assert printer.state == "error", "retrying a refused port cannot help"
+    assert "spy:// ports are not allowed" in printer.state_message
     texts = " ".join(
         ResponseLine.objects.filter(printer=printer).values_list("text", flat=True)
     )
