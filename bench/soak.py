@@ -5,7 +5,8 @@ One long job per firmware at 250000 baud, printed by the real worker under
 breaks things all along the way:
 
 - Marlin: 2 % of received lines corrupted (each is a checksum error and a resend),
-  lost `ok`s, a `busy:` storm, the port pulled and restored, the worker SIGKILLed.
+  0.5 % of `ok`s lost at random, garbled replies, a `busy:` storm, the port pulled
+  and restored, the worker SIGKILLed.
 - GRBL: the port pulled and restored and the worker SIGKILLed (GRBL has no line
   numbers or checksums, so a corrupted line there is a wrong move or an error that
   stops the job; lost `ok`s are not recoverable by counting characters).
@@ -55,7 +56,18 @@ class Plan:
 PLANS = {
     "marlin": Plan(
         "marlin",
-        ["--corrupt", "0.02", "--seed", "8", "--drop-ok-every", "251"],
+        # 2 % of received lines corrupted; 0.5 % of oks lost at random; one byte in
+        # 20,000 of the replies garbled (a broken ok, Resend or temperature line).
+        [
+            "--corrupt",
+            "0.02",
+            "--drop-ok-share",
+            "0.005",
+            "--noise-to-host",
+            "0.00005",
+            "--seed",
+            "8",
+        ],
         busy_storm_at=0.15,
     ),
     "grbl": Plan("grbl", []),

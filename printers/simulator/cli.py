@@ -93,6 +93,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="share of bytes garbled on the wire towards the host",
     )  # fmt: skip
     faults.add_argument("--drop-ok-every", type=int, default=0, metavar="N")
+    faults.add_argument(
+        "--drop-ok-share", type=float, default=0.0, metavar="SHARE",
+        help="lose this share of oks at random (with --seed: repeatable)",
+    )  # fmt: skip
     faults.add_argument("--reset-after", type=int, default=0, metavar="N")
     faults.add_argument(
         "--reset-banner", choices=RESET_BANNERS, default="start",
@@ -192,6 +196,7 @@ def _fault_config(
         noise_to_firmware=args.noise_to_firmware,
         noise_to_host=args.noise_to_host,
         drop_ok_every=args.drop_ok_every,
+        drop_ok_share=args.drop_ok_share,
         reset_after=args.reset_after,
         reset_banner=args.reset_banner,
         busy_after=args.busy_after,
