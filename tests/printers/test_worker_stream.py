@@ -8,23 +8,9 @@ from jobs.models import Job
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker
 from tests.conftest import job_lines, wait_for
-from tests.printers.stream_checks import assert_streamed_exactly, sim_stats
+from tests.printers.stream_checks import assert_streamed_exactly, run_job, sim_stats
 
 pytestmark = [pytest.mark.django_db, pytest.mark.slow]
-
-
-def stream_job(worker: PrinterWorker, job: Job, timeout: float) -> Job:
-    worker.start()
-    try:
-        wait_for(
-            lambda: Job.objects.get(pk=job.pk).state not in ("queued", "printing"),
-            timeout,
-            f"job {job.pk} to finish",
-            step=worker.tick,
-        )
-    finally:
-        worker.stop()
-    return Job.objects.get(pk=job.pk)
 
 
 @pytest.mark.parametrize("corrupt", ["0.01", "0.05"])
@@ -40,7 +26,7 @@ def test_marlin_job_survives_corrupted_lines_without_loss_or_repeat(
     job = make_job(printer, text)
     worker = PrinterWorker(printer)
 
-    job = stream_job(worker, job, timeout=600)
+    job = run_job(worker, job, timeout=600)
 
     assert job.state == Job.State.COMPLETED, job.message
     assert job.lines_acked == job.line_count == 20003
@@ -57,7 +43,7 @@ def test_grbl_job_streams_every_line_once_in_order(sim_factory, make_printer, ma
     job = make_job(printer, text)
     worker = PrinterWorker(printer)
 
-    job = stream_job(worker, job, timeout=600)
+    job = run_job(worker, job, timeout=600)
 
     assert job.state == Job.State.COMPLETED, job.message
     wait_for(lambda: len(job_lines(sim)) >= 20004, 10, "the record")
