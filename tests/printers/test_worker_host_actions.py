@@ -174,3 +174,53 @@ def test_action_disconnect_closes_the_port_until_a_reconnect(sim_factory, make_p
         worker.stop()
     texts = ResponseLine.objects.filter(printer=printer).values_list("text", flat=True)
     assert any("//action:disconnect" in t for t in texts if t.startswith("[printhost]"))
+
+
+def test_without_the_emergency_parser_the_prompt_says_to_use_the_display(
+    sim_factory, make_printer, make_job
+):
+    sim = sim_factory("marlin", "--time-scale", "0", "--no-emergency-parser")
+    printer = make_printer(port=str(sim.link), ack_timeout=1.0, busy_timeout=2.0)
+    text = with_m600(20, at=10)
+    job = make_job(printer, text)
+    worker = started(printer)
+    try:
+        wait_for(lambda: prompt_of(printer) is not None, 30, "the prompt",
+                 step=worker.tick)  # fmt: skip
+        assert prompt_of(printer)["answerable"] is False
+        printer.refresh_from_db()
+        assert "answer on the printer's display" in printer.state_message
+        row = request_action(printer, "prompt:0")
+        wait_for(lambda: QueuedCommand.objects.get(pk=row.pk).state == "done", 10,
+                 "the answer", step=worker.tick)  # fmt: skip
+        row.refresh_from_db()
+        assert "answer on the printer's display" in row.reply
+        tick_for(worker, 2.0)
+        assert job_state(job) == "paused", "M876 cannot reach a parked firmware"
+        assert sim.control("click") == "ok"  # the printer's own display
+        wait_for(lambda: job_state(job) == "completed", 30, "the job to complete",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+    assert_streamed_exactly(sim, text)
+
+
+def test_a_notification_from_the_printer_goes_to_the_log(sim_factory, make_printer):
+    sim = sim_factory("marlin", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link))
+    worker = started(printer)
+    try:
+        wait_for(lambda: worker.emergency_parser is not None, 10, "M115",
+                 step=worker.tick)  # fmt: skip
+        assert sim.control("action notification Filament runout") == "ok"
+        wait_for(
+            lambda: worker.log.flush() is None and ResponseLine.objects.filter(
+                printer=printer, text="[printhost] printer says: Filament runout"
+            ).exists(),
+            10, "the note", step=worker.tick,
+        )  # fmt: skip
+    finally:
+        worker.stop()
+    assert (
+        sim.control("click") == "error: click: the printer is not waiting for the user"
+    )
