@@ -83,6 +83,33 @@ def test_m600_waits_for_the_user_longer_than_the_ack_timeout_and_completes(
     assert PAUSE_SCRIPT not in sim.executed()
 
 
+def test_paused_for_user_outlasts_a_busy_timeout_shorter_than_the_keepalive(
+    sim_factory, make_printer, make_job
+):
+    # Marlin's default keepalive (2 s) is longer than this busy_timeout: for
+    # `busy: processing` that is a timeout between two keepalives; for a printer
+    # waiting for the user it must not be (no deadline until the next ok).
+    sim = sim_factory("marlin", "--time-scale", "0", "--keepalive", "2")
+    printer = make_printer(
+        port=str(sim.link), ack_timeout=3.0, busy_timeout=1.0, flow="buffered"
+    )
+    text = with_m600(40, at=20)
+    job = make_job(printer, text)
+    worker = started(printer)
+    try:
+        wait_for(lambda: prompt_of(printer) is not None, 30, "the prompt",
+                 step=worker.tick)  # fmt: skip
+        tick_for(worker, 7.0)  # three keepalives, each more than busy_timeout apart
+        assert job_state(job) == "paused"
+        request_action(printer, "prompt:0")
+        wait_for(lambda: job_state(job) == "completed", 30, "the job to complete",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+    assert worker.protocol.timeouts == 0
+    assert_streamed_exactly(sim, text)
+
+
 def test_answering_when_nothing_is_asked_is_an_error(sim_factory, make_printer):
     sim = sim_factory("marlin", "--time-scale", "0")
     printer = make_printer(port=str(sim.link))
