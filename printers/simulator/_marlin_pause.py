@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from printers.simulator._marlin_machine import words
+
 if TYPE_CHECKING:
     from collections.abc import Callable
 
@@ -55,6 +57,18 @@ class FilamentChange:
             return False
         self._continued = True
         return True
+
+    def on_emergency(self, code: str, args: str) -> bool:
+        """M108 or M876 through the emergency parser; True if M600 continues."""
+        if code == "108":
+            return self.continue_("M108")
+        if code != "876":
+            return False
+        choice = int(words(args.split(";")[0]).get("S", 0.0))
+        if choice != 0:  # only "Continue" (0) is a button of this prompt
+            self.answers.append(f"M876 S{choice}")
+            return False
+        return self.continue_("M876 S0")
 
     def m876(self, args: str, now: float) -> None:
         """M876 from the queue: the emergency parser already acted on it."""

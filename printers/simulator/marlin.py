@@ -219,23 +219,13 @@ class MarlinFirmware:
             return
         for match in _EMERGENCY.finditer(chunk, 0, cut):
             code = match[1].decode()
+            if self.pause.on_emergency(code, match[2].decode("latin-1")):
+                self._poked = True  # M108 or M876 S0 continues a parked M600
             if code == "876":
-                self._answer(match[2].decode("latin-1").split(";")[0].strip())
                 continue
-            if code == "108" and self.pause.continue_("M108"):
-                self._poked = True
             self._emergency(code, now)
             if self.killed:
                 return
-
-    def _answer(self, args: str) -> None:
-        """M876 S<n> through the emergency parser: button 0 continues M600."""
-        choice = int(words(args).get("S", 0.0))
-        how = f"M876 S{choice}"
-        if choice == 0 and self.pause.continue_(how):
-            self._poked = True
-        elif choice != 0:
-            self.pause.answers.append(how)
 
     def click(self, now: float) -> bool:
         """The LCD's button: continue a parked M600; False if nothing waits."""
