@@ -143,8 +143,15 @@ class StreamHost:
         return ""
 
     def request_resume(self, *, script: bool = True) -> str:
-        """Ask the paused stream to resume (without *script*: the printer did)."""
+        """Ask the paused stream to resume (without *script*: the printer did).
+
+        A pause asked but not applied yet is simply dropped (the printer paused
+        and resumed itself before the stream could stop).
+        """
         stream = self.current_stream
+        if stream is not None and self._requested == "pause":
+            self._requested, self._with_script = "", True
+            return ""
         if stream is None or stream.state is not S.PAUSED:
             return "no stream is paused"
         self._requested, self._with_script = "resume", script
