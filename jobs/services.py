@@ -260,8 +260,22 @@ def emergency_stop(printer: Printer, *, origin: str = "") -> QueuedCommand:
 
 
 def request_action(printer: Printer, action: str, *, origin: str = "") -> QueuedCommand:
-    """Ask the worker to pause, resume, abort, accept a clear bed or reconnect."""
-    if action not in QueuedCommand.Action.values:
+    """Ask the worker to pause, resume, abort, accept a clear bed or reconnect.
+
+    `prompt:<n>` answers the printer's host prompt with button n (the worker checks
+    it against the dialog shown).
+    """
+    prompt = f"{QueuedCommand.Action.PROMPT}:"
+    if action.startswith(prompt):
+        choice = action[len(prompt) :]
+        if not (choice.isdigit() and len(choice) <= 2):
+            raise ValueError(
+                f"the prompt's choice must be a button index, not {choice!r}"
+            )
+    elif (
+        action not in QueuedCommand.Action.values
+        or action == QueuedCommand.Action.PROMPT
+    ):
         raise ValueError(
             f"unknown action {action!r}; use one of {', '.join(QueuedCommand.Action.values)}"
         )

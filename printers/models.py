@@ -205,6 +205,8 @@ class QueuedCommand(models.Model):
         BED_CLEAR = "bed_clear", "bed is clear"
         RECONNECT = "reconnect", "reconnect"
         DISCONNECT = "disconnect", "disconnect"
+        #: `prompt:<n>`: answer the firmware's host prompt with button n (M876).
+        PROMPT = "prompt", "answer the printer's prompt"
 
     class State(models.TextChoices):
         PENDING = "pending", "pending"

@@ -82,6 +82,7 @@ def run_action(
 ) -> QueuedCommand:
     """Pause, resume, abort, clear the bed, (re)connect, disconnect or stop now.
 
+    `prompt:<n>` answers the printer's host prompt with button n (M876).
     `emergency_stop` goes out ahead of everything; the rest are requests for the
     worker's stream controller. Audited as *audit_as* (default: the action), with
     the running job.

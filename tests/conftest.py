@@ -102,7 +102,7 @@ def make_job(storage: Path, tmp_path: Path) -> Callable[..., object]:
 
 
 #: Commands the worker sends by itself (hello, temperatures), not part of any job.
-HOST_COMMANDS = ("M110", "M115", "M105", "M155", "$I")
+HOST_COMMANDS = ("M110", "M115", "M105", "M155", "M876", "$I")
 
 
 def job_lines(sim: Sim) -> list[str]:

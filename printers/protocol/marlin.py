@@ -44,6 +44,7 @@
 #   skip n (Repetier)             | a duplicate (R3), or R6             | -
 #   wait                          | T2                                  | -
 #   busy:                         | progress, busy_timeout applies      | Busy
+#   busy: paused for user/input   | progress, no deadline until ok (T1a)| Busy
 #   T:.. B:.. report              | progress if a long command is oldest| Temperature..
 #   start (also after junk bytes) | abandon() (F2 follows)              | FirmwareReset
 #   kill()/thermal/`!!`/fatal:    | abandon()                           | FirmwareHalted
@@ -99,6 +100,9 @@
 #       row -> LinkFailed. Oldest live numbered -> re-send from it (R2, starting
 #       timeout recovery). Unnumbered, not printing -> its ok was lost, Ack it.
 #       Unnumbered while printing -> LinkFailed (it cannot be retried safely).
+#   T1a After `busy: paused for user` / `paused for input` (M600, M0, a host
+#       prompt) there is no deadline and no probe: a person may take any time. The
+#       next ok (or a busy: of another kind) brings normal timing back.
 #   T2  `wait` while the oldest live line went out more than two round trips ago
 #       acts as T1 without counting; otherwise it is ignored.
 #   T3  Any ok resets the row of timeouts.
@@ -129,6 +133,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
+    Busy,
     FirmwareReset,
     LinkFailed,
     Received,
@@ -409,7 +414,8 @@ class MarlinProtocol:
         self._recovery.wait(printing=self.printing)
 
     def _on_busy(self, reply: Reply) -> None:
-        self._recovery.busy()
+        event = reply.event
+        self._recovery.busy(event.message if isinstance(event, Busy) else "")
         self._on_information(reply)
 
     def _on_temperature(self, reply: Reply) -> None:

@@ -25,6 +25,8 @@ _RESEND_ERRORS = (ReplyKind.LINE_NUMBER_ERROR, ReplyKind.CHECKSUM_ERROR)
 ERROR_WAIT = 0.05
 _RTT_START = 0.05
 _RTT_CAP = 1.0
+#: T1a: busy: messages of a firmware waiting for a person (M600, M0, host prompts).
+USER_WAIT = ("paused for user", "paused for input")
 
 
 class Recovery:
@@ -66,6 +68,8 @@ class Recovery:
         self._n: int | None = None
         self._dup_budget = self._repeats = self._consecutive_timeouts = 0
         self._after_timeout = self._busy_seen = False
+        #: T1a: the last busy: said the firmware waits for the user.
+        self.user_wait = False
         self._last_progress = self._window.clock
         #: R8: when the last line error came that no Resend has answered yet.
         self._error_at: float | None = None
@@ -249,10 +253,16 @@ class Recovery:
         if sent_at is not None and self._window.clock - sent_at > 2 * self.rtt:
             self.timeout(printing=printing, counted=False)
 
-    def busy(self) -> None:
-        """`busy:`: progress, and busy_timeout applies (T1)."""
+    def busy(self, message: str = "") -> None:
+        """`busy:`: progress, and busy_timeout applies (T1).
+
+        `busy: paused for user` / `paused for input` (M600, M0, a host prompt): the
+        firmware waits for a person, for as long as they take; no deadline at all
+        until an ok (or any other progress but another busy) ends the wait (T1a).
+        """
         self.progress()
         self._busy_seen = True
+        self.user_wait = message.lower().startswith(USER_WAIT)
 
     def temperature(self) -> None:
         """A temperature report is progress while a long command is oldest (T1)."""
@@ -269,7 +279,7 @@ class Recovery:
         if line.sent_at is not None:
             elapsed = min(self._window.clock - line.sent_at, _RTT_CAP)
             self.rtt += 0.2 * (elapsed - self.rtt)
-        self._busy_seen = self._after_timeout = False
+        self._busy_seen = self._after_timeout = self.user_wait = False
         if not line.internal:
             self._events.append(Ack(line.tag))
         recovery = self._n
@@ -348,6 +358,8 @@ class Recovery:
 
     def probe_deadline(self) -> float | None:
         """T6: when the oldest live line's ok is late enough to send a probe."""
+        if self.user_wait:
+            return None
         return self.prober.deadline(
             since=self._last_progress, rtt=self.rtt, busy=self._busy_seen
         )
@@ -386,7 +398,7 @@ class Recovery:
     def deadline(self) -> float | None:
         """T1: when the oldest live line is overdue; None with nothing written."""
         live = self._window.live
-        if not live or live[0].sent_at is None:
+        if not live or live[0].sent_at is None or self.user_wait:
             return None
         base = max(self._last_progress, live[0].sent_at)
         return base + (self._busy_timeout if self._busy_seen else self._ack_timeout)

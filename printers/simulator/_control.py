@@ -19,6 +19,8 @@ COMMANDS = (
     "drop-ok <every_n>",
     "halt",
     "stats",
+    "click",
+    "action <text>",
 )
 
 
@@ -26,7 +28,9 @@ def run(sim: Simulator, line: str, now: float) -> str:
     """Apply one command line; returns the answer. Raises ValueError for bad input."""
     name, *args = line.split()
     name = name.lower()
-    if name in ("reset", "close", "reopen", "halt", "stats") and args:
+    if name == "action":
+        return _action(sim, line.split(None, 1)[1:], now)
+    if name in ("reset", "close", "reopen", "halt", "stats", "click") and args:
         raise ValueError(f"{name} takes no argument")
     if name == "reset":
         sim.firmware.reset(now)
@@ -36,12 +40,36 @@ def run(sim: Simulator, line: str, now: float) -> str:
         sim.reopen_ports(now)
     elif name == "halt":
         sim.firmware.halt(now)
+    elif name == "click":
+        return _click(sim, now)
     elif name == "stats":
         return "ok " + json.dumps(_stats(sim))
     elif name in ("busy", "corrupt", "drop-ok"):
         _set(sim, name, _one_number(name, args), now)
     else:
         raise ValueError(f"unknown command {name!r}; known: {', '.join(COMMANDS)}")
+    return "ok"
+
+
+def _click(sim: Simulator, now: float) -> str:
+    """The LCD's button: continues a parked M600 (Marlin only)."""
+    click = getattr(sim.firmware, "click", None)
+    if click is None:
+        raise ValueError("click: only a Marlin firmware has a display to click")
+    if not click(now):
+        raise ValueError("click: the printer is not waiting for the user")
+    return "ok"
+
+
+def _action(sim: Simulator, rest: list[str], now: float) -> str:
+    """`action pause`: the firmware prints `//action:pause` (host action commands)."""
+    text = rest[0].strip() if rest else ""
+    if not text or "\n" in text or "\r" in text:
+        raise ValueError("action takes the text after //action:, e.g. `action pause`")
+    printer = getattr(sim.firmware, "host_action", None)
+    if printer is None:
+        raise ValueError("action: only a Marlin firmware sends host action commands")
+    printer(text)
     return "ok"
 
 

@@ -70,6 +70,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--keepalive", type=float, default=2.0, help="seconds; 0 = off"
     )
     machine.add_argument(
+        "--host-prompts", action=argparse.BooleanOptionalAction, default=True,
+        help="Marlin: M600 sends //action:paused and a prompt (HOST_PROMPT_SUPPORT)",
+    )  # fmt: skip
+    machine.add_argument(
         "--dialect", choices=tuple(DIALECTS), default="marlin",
         help="Marlin: wording and order of line errors of this firmware",
     )  # fmt: skip
@@ -234,6 +238,7 @@ def _firmware(
         advanced_ok=args.advanced_ok,
         emergency_parser=args.emergency_parser,
         keepalive=args.keepalive,
+        host_prompts=args.host_prompts,
         dialect=args.dialect,
         ok_before_resend=args.ok_before_resend,
         echo_lines=args.echo_lines or "",

@@ -20,6 +20,7 @@ from printers.protocol.checksum import parse_framed_line
 from printers.simulator import _marlin_text as text
 from printers.simulator._marlin_dialect import DIALECTS
 from printers.simulator._marlin_machine import MarlinMachine, words
+from printers.simulator._marlin_pause import FilamentChange
 from printers.simulator._rx import LineReader
 
 if TYPE_CHECKING:
@@ -34,7 +35,9 @@ __all__ = ["MarlinFirmware"]
 #: MAX_CMD_SIZE - 1: the rest of a longer line is skipped.
 MAX_LINE = 95
 #: The line the emergency parser reacts to (it sees bytes before the ring does).
-_EMERGENCY = re.compile(rb"(?m)^[ \t]*(?:N-?\d+[ \t]*)?M(108|112|410)(?![0-9])[^\n]*\n")
+_EMERGENCY = re.compile(
+    rb"(?m)^[ \t]*(?:N-?\d+[ \t]*)?M(108|112|410|876)(?![0-9])([^\n]*)\n"
+)
 _CODE = re.compile(r"([GMTgmt])\s*(\d+)")
 
 
@@ -65,6 +68,7 @@ class MarlinFirmware:
         advanced_ok: bool = True,
         emergency_parser: bool = True,
         keepalive: float = 2.0,
+        host_prompts: bool = True,
         dialect: str = "marlin",
         ok_before_resend: bool = False,
         echo_lines: str = "",
@@ -79,6 +83,8 @@ class MarlinFirmware:
         self.advanced_ok = advanced_ok
         self.emergency_parser = emergency_parser
         self.default_keepalive = keepalive
+        #: HOST_PROMPT_SUPPORT: M600 sends //action:paused and a prompt.
+        self.host_prompts = host_prompts
         #: Wording and order of line errors (see _marlin_dialect).
         self.dialect = DIALECTS[dialect]
         self._ok_order = self.dialect.ok_order
@@ -167,6 +173,7 @@ class MarlinFirmware:
         self._report_at: float | None = None
         self._report_interval = 0.0
         self.keepalive = self.default_keepalive
+        self.pause = FilamentChange(self._print, host_prompts=self.host_prompts)
         self.machine = MarlinMachine(
             self._print,
             planner=self.planner_blocks,
@@ -211,9 +218,26 @@ class MarlinFirmware:
         if b"M" not in chunk[:cut]:
             return
         for match in _EMERGENCY.finditer(chunk, 0, cut):
-            self._emergency(match[1].decode(), now)
+            code = match[1].decode()
+            if self.pause.on_emergency(code, match[2].decode("latin-1")):
+                self._poked = True  # M108 or M876 S0 continues a parked M600
+            if code == "876":
+                continue
+            self._emergency(code, now)
             if self.killed:
                 return
+
+    def click(self, now: float) -> bool:
+        """The LCD's button: continue a parked M600; False if nothing waits."""
+        if not self.pause.continue_("click"):
+            return False
+        self._poked = True
+        self._execute(now)
+        return True
+
+    def host_action(self, text: str) -> None:
+        """Print `//action:<text>` (as a LCD menu or a macro would make it)."""
+        self._print(f"//action:{text}")
 
     def _emergency(self, code: str, now: float) -> None:
         if code == "112":
@@ -389,7 +413,8 @@ class MarlinFirmware:
     def _tick_reports(self, now: float) -> None:
         at = self._keepalive_at
         if at is not None and now >= at:
-            self._print("echo:busy: processing")
+            why = "paused for user" if self.pause.waiting else "processing"
+            self._print(f"echo:busy: {why}")
             self._keepalive_at = max(at + self.keepalive, now)
         at = self._report_at
         if at is not None and now >= at:
@@ -408,6 +433,8 @@ class MarlinFirmware:
             M113=self._m113,
             M115=self._m115,
             M155=self._m155,
+            M600=self.pause.m600,
+            M876=self.pause.m876,
         )
         return table
 

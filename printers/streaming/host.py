@@ -99,6 +99,8 @@ class StreamHost:
         self._events: deque[HostEvent] = deque()
         self._pending: dict[int, Line] = {}
         self._requested: str = ""
+        #: False when the printer paused/resumed itself (//action:paused, resumed).
+        self._with_script = True
         self._abort_message = ""
 
     # -- requests (operation 1) ------------------------------------------------
@@ -127,21 +129,32 @@ class StreamHost:
         """Queue an emergency command: it goes out on the next advance, ahead of all."""
         self.emergency_queue.append(text)
 
-    def request_pause(self) -> str:
-        """Ask the active stream to pause; returns an error message or ""."""
+    def request_pause(self, *, script: bool = True) -> str:
+        """Ask the active stream to pause; returns an error message or "".
+
+        Without *script* the printer paused itself: the pause script is not run.
+        """
         stream = self.current_stream
         if stream is None:
             return "no stream is running"
         if stream.state in (S.PAUSE, S.PAUSED):
             return "the stream is already paused"
-        self._requested = "pause"
+        self._requested, self._with_script = "pause", script
         return ""
 
-    def request_resume(self) -> str:
+    def request_resume(self, *, script: bool = True) -> str:
+        """Ask the paused stream to resume (without *script*: the printer did).
+
+        A pause asked but not applied yet is simply dropped (the printer paused
+        and resumed itself before the stream could stop).
+        """
         stream = self.current_stream
+        if stream is not None and self._requested == "pause":
+            self._requested, self._with_script = "", True
+            return ""
         if stream is None or stream.state is not S.PAUSED:
             return "no stream is paused"
-        self._requested = "resume"
+        self._requested, self._with_script = "resume", script
         return ""
 
     def request_abort(self, message: str = "aborted by request") -> str:
@@ -321,7 +334,9 @@ class StreamHost:
         return True
 
     def _on_pause(self, stream: Stream, now: float) -> bool:
-        self.run_script("pause")
+        if self._with_script:
+            self.run_script("pause")
+        self._with_script = True
         stream.move(S.PAUSED)
         self._events.append(StreamPaused(stream))
         return True
@@ -330,7 +345,9 @@ class StreamHost:
         return self._take_request(stream)
 
     def _on_resume(self, stream: Stream, now: float) -> bool:
-        self.run_script("resume")
+        if self._with_script:
+            self.run_script("resume")
+        self._with_script = True
         stream.move(S.READY_TO_READ_CURSOR)
         self._events.append(StreamResumed(stream))
         return True

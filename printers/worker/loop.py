@@ -32,6 +32,7 @@ from printers.transport import (
 from printers.worker import spool
 from printers.worker.journal import Entry, Journal
 from printers.worker.lease import Lease, LeaseLost, make_owner
+from printers.worker.prompts import HostPrompts
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
@@ -84,6 +85,8 @@ class PrinterWorker(Reactions):
         self.autoreport = False
         #: Cap:EMERGENCY_PARSER from this connection's M115 (None: not reported).
         self.emergency_parser: bool | None = None
+        #: The firmware's host prompt (//action:prompt_*), per connection.
+        self.prompts = HostPrompts(self.status)
         #: An emergency DTR reset is under way: its reset banner keeps the halt.
         self.expect_reset = False
         self.last_stream_error = ""
@@ -282,6 +285,7 @@ class PrinterWorker(Reactions):
         self.halted = ""
         self.autoreport = False
         self.emergency_parser, self.expect_reset = None, False
+        self.prompts.clear()
         self.note(f"connected to {self.printer.port} at {self.printer.baud} baud")
         self.hello(now)
         self.update_state()
@@ -328,6 +332,7 @@ class PrinterWorker(Reactions):
         self.status.set_state(Printer.State.OFFLINE, text)
 
     def _close(self) -> None:
+        self.prompts.clear()
         if self.transport is not None:
             self.transport.close()
             self.transport = None
@@ -347,17 +352,18 @@ class PrinterWorker(Reactions):
             self.status.set_state(Printer.State.ERROR, self.halted)
             return
         queue = self.host.queue_state.value
+        waiting = self.prompts.waiting_for()
         if queue == "processing":
-            self.status.set_state(Printer.State.PRINTING)
+            self.status.set_state(Printer.State.PRINTING, waiting)
         elif queue == "paused":
-            self.status.set_state(Printer.State.PAUSED)
+            self.status.set_state(Printer.State.PAUSED, waiting)
         elif self.waitstart:
             self.status.set_state(
                 Printer.State.WAITSTART,
                 "clear the bed, then confirm to start the next job",
             )
         else:
-            self.status.set_state(Printer.State.IDLE)
+            self.status.set_state(Printer.State.IDLE, waiting)
 
     def note(self, text: str, kind: int = LineKind.IMPORTANT) -> None:
         """A line from printhost itself in the response log (not from the firmware)."""

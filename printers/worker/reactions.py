@@ -18,8 +18,15 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger("printhost.worker")
 
-#: Host commands a firmware may send with //action: and what they do here.
-_ACTIONS = {"pause": "pause", "paused": "pause", "resume": "resume", "cancel": "abort"}
+#: What the firmware's //action: lines mean to the stream here: pause/resume run
+#: the printer's scripts (the host is asked to act); paused/resumed do not (the
+#: printer already parked or continued by itself: from its display, M600, M125).
+_STREAM_ACTIONS = {
+    "pause": ("pause", True),
+    "paused": ("pause", False),
+    "resume": ("resume", True),
+    "resumed": ("resume", False),
+}
 
 
 class Reactions:
@@ -64,8 +71,8 @@ class Reactions:
                 self._on_grbl_event(event)
             case ev.Capability(name=name, enabled=enabled):
                 self._on_capability(name, enabled=enabled)
-            case ev.ActionCommand(action=action):
-                self._on_action(action)
+            case ev.ActionCommand(action=action, argument=argument):
+                self._on_action(action.lower(), argument)
             case ev.FirmwareReset(banner=banner):
                 self._on_reset(banner, now)
             case ev.FirmwareHalted(message=message):
@@ -150,14 +157,38 @@ class Reactions:
             self.halted = ""
         self.grbl_alarm = ""
 
-    def _on_action(self: PrinterWorker, action: str) -> None:
-        wanted = _ACTIONS.get(action.lower())
-        if wanted == "pause":
-            self.host.request_pause()
-        elif wanted == "resume":
-            self.host.request_resume()
-        elif wanted == "abort":
+    def _on_action(self: PrinterWorker, action: str, argument: str) -> None:
+        line = f"//action:{action} {argument}".rstrip()
+        if action.startswith("prompt_"):
+            self.prompts.on_action(
+                action, argument, answerable=self.emergency_parser is True
+            )
+        elif action in _STREAM_ACTIONS:
+            wanted, script = _STREAM_ACTIONS[action]
+            host = self.host
+            error = (
+                host.request_pause(script=script)
+                if wanted == "pause"
+                else host.request_resume(script=script)
+            )
+            scripted = " (running the printer's script)" if script else ""
+            self.note(
+                f"the printer asked: {line}{scripted}" + (f": {error}" if error else "")
+            )
+        elif action == "cancel":
+            self.note(f"the printer asked: {line}")
             self.host.request_abort("cancelled by the printer (//action:cancel)")
+        elif action == "disconnect":
+            self.stay_offline = True
+            self.disconnect(
+                "the printer asked the host to close the port (//action:disconnect); "
+                "it stays offline until a reconnect request"
+            )
+            self.note("disconnected by the printer (//action:disconnect)")
+        elif action == "notification":
+            self.note(f"printer says: {argument}")
+        else:  # start, probe_failed and whatever a newer firmware adds
+            self.note(f"the printer sent {line}")
 
     def _on_reset(self: PrinterWorker, banner: str, now: float) -> None:
         if self.host.current_stream is not None:
@@ -170,6 +201,7 @@ class Reactions:
             self.stop_streams(f"the firmware reset ({banner!r})")
         self._alarm_before_reset = self.grbl_alarm
         self.grbl_alarm = ""
+        self.prompts.clear()
         if self.expect_reset:  # our emergency DTR pulse: the stop's message stays
             self.expect_reset = False
         else:

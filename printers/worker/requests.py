@@ -18,6 +18,7 @@ from printers.streaming.esp import (
     parse_esp,
 )
 from printers.worker.emergency import after_m112
+from printers.worker.prompts import DISPLAY_HINT
 
 if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
@@ -107,6 +108,8 @@ class RequestPoller:
         worker = self.worker
         host = worker.host
         who = f" by {origin}" if origin else ""
+        if action.startswith(f"{QueuedCommand.Action.PROMPT}:"):
+            return self._answer_prompt(action.partition(":")[2], who)
         match action:
             case QueuedCommand.Action.PAUSE:
                 error = host.request_pause()
@@ -128,6 +131,28 @@ class RequestPoller:
                 error = f"unknown action {action!r}"
         worker.update_state()
         return f"error: {error}" if error else "ok"
+
+    def _answer_prompt(self, choice: str, who: str) -> str:
+        """M876 S<n> for the shown host prompt, out of band like M112.
+
+        Marlin's EMERGENCY_PARSER catches M876 even while the firmware is blocked
+        in M600's wait loop; a line queued behind the job would never get there.
+        """
+        worker = self.worker
+        if worker.transport is None:
+            return "error: printer offline"
+        try:
+            command = worker.prompts.answer(int(choice))
+        except ValueError as error:  # PromptError is a ValueError
+            return f"error: {error}"
+        now = worker.clock()
+        worker.protocol.send_emergency(command, now)
+        worker.pump(now)
+        worker.note(f"answered the printer's prompt with {command}{who}")
+        worker.update_state()
+        if worker.emergency_parser is not True:
+            return f"ok: {command} sent; {DISPLAY_HINT}"
+        return f"ok: {command} sent"
 
     # -- replies ------------------------------------------------------------------
 

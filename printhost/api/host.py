@@ -73,6 +73,40 @@ def emergency(request: HttpRequest, slug: str) -> HttpResponse:
     return envelope({"id": row.pk})
 
 
+@router.post("/printer/prompt/{slug}", summary="Answer the printer's prompt")
+def prompt(request: HttpRequest, slug: str) -> HttpResponse:
+    """JSON `{"choice": n}`: button n (from 0) of the prompt the printer shows.
+
+    Sent as `M876 S<n>` through the firmware's emergency parser (it reaches a
+    printer parked in M600). 409 if nothing is asked, 422 for a button it lacks.
+    """
+    printer = printer_for(request, slug, Role.OPERATOR)
+    try:
+        body = json.loads(request.body or b"{}")
+    except ValueError:
+        raise HttpError(400, "the body must be JSON") from None
+    choice = body.get("choice") if isinstance(body, dict) else None
+    if not isinstance(choice, int) or isinstance(choice, bool):
+        raise HttpError(422, 'send {"choice": n}, n the button\'s index from 0')
+    shown = (printer.machine_status or {}).get("prompt")
+    if not shown:
+        raise HttpError(409, f"{printer.slug} is not asking anything now")
+    buttons = max(1, len(shown.get("choices") or ()))
+    if not 0 <= choice < buttons:
+        raise HttpError(
+            422, f"choice {choice} is not one of the {buttons} the printer offers"
+        )
+    labels = shown.get("choices") or ["(no button)"]
+    row = run_action(
+        caller_of(request),
+        printer,
+        f"{QueuedCommand.Action.PROMPT}:{choice}",
+        audit_as="prompt",
+        detail=f"{shown.get('message', '')}: {labels[choice]}",
+    )
+    return envelope({"id": row.pk, "answerable": bool(shown.get("answerable"))})
+
+
 @router.post("/printer/queue/{slug}", summary="Reorder the queue")
 def queue(request: HttpRequest, slug: str) -> HttpResponse:
     """JSON `{"order": [job ids]}` (those first, in order) or `{"id": n, "position": i}`.

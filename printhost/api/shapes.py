@@ -48,8 +48,10 @@ def printer_state(printer: Printer) -> dict[str, Any]:
         "firmware": printer.firmware,
         "firmware_name": printer.firmware_name,
         "temperatures": printer.temperatures or {},
-        "position": {k: v for k, v in status.items() if k != "state"},
+        "position": {k: v for k, v in status.items() if k not in ("state", "prompt")},
         "machine_state": status.get("state", ""),
+        # The firmware's host prompt: {"message", "choices", "answerable"} or None.
+        "prompt": status.get("prompt"),
         "job": active.as_dict() if active else None,
         "queue": [job.as_dict() for job in queue],
     }

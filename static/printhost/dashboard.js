@@ -1,5 +1,6 @@
 // Dashboard: every printer card, live through /ws/printers/, with its buttons.
 import { api, clearError, liveFeed, showError, showJob, showState, tempsText } from "./api.js";
+import { answerPrompt, showPrompt } from "./prompt.js";
 
 const cards = new Map();
 for (const card of document.querySelectorAll("[data-test=printer-card]")) {
@@ -7,8 +8,10 @@ for (const card of document.querySelectorAll("[data-test=printer-card]")) {
 }
 const lastIds = {};
 
-function setState(card, state) {
+function setState(card, state, status) {
   card.dataset.state = state;
+  const operator = Boolean(card.querySelector("[data-test=estop]:not([disabled])"));
+  showPrompt(card.querySelector("[data-test=prompt]"), status?.prompt, operator);
   showState(card.querySelector("[data-test=state]"), state);
   const bedClear = card.querySelector("[data-test=bed-clear]");
   if (bedClear) bedClear.hidden = state !== "waitstart";
@@ -24,12 +27,12 @@ function onMessage(message) {
   switch (message.type) {
     case "hello":
       lastIds[message.printer] = message.last;
-      setState(card, message.state);
+      setState(card, message.state, message.machine_status);
       card.querySelector("[data-test=temps]").textContent = tempsText(message.temperatures);
       showJob(card, message.job);
       break;
     case "state":
-      setState(card, message.state);
+      setState(card, message.state, message.machine_status);
       break;
     case "temperatures":
       card.querySelector("[data-test=temps]").textContent = tempsText(message.temperatures);
@@ -61,6 +64,11 @@ document.addEventListener("click", async (event) => {
   if (!card) return;
   const slug = encodeURIComponent(card.dataset.printer);
   const test = button.dataset.test;
+  if (test === "prompt-choice") {
+    clearError();
+    await answerPrompt(slug, button);
+    return;
+  }
   if (test !== "estop" && test !== "bed-clear") return;
   clearError();
   button.disabled = true;

@@ -1,6 +1,7 @@
 // The printer page: live state, terminal, queue and upload, chart, controls, connection.
 import { api, clearError, csrfToken, errorOf, liveFeed, showError, showJob, showState, tempsText } from "./api.js";
 import { TempChart } from "./chart.js";
+import { answerPrompt, showPrompt } from "./prompt.js";
 
 const root = document.getElementById("printer");
 const slug = root.dataset.printer;
@@ -323,6 +324,8 @@ root.addEventListener("click", async (event) => {
     }
   } else if (jobActions[test]) {
     await api("POST", `/printer/job/${base}?a=${jobActions[test]}`);
+  } else if (test === "prompt-choice") {
+    await answerPrompt(base, b);
   } else if (test === "jog") {
     await jog(b.dataset.axis, b.dataset.dir);
   } else if (test === "set-hotend") {
@@ -359,6 +362,7 @@ function onMessage(message) {
   switch (message.type) {
     case "hello":
       setState(message.state, message.message);
+      showPrompt($("prompt"), message.machine_status?.prompt, operator);
       $("temps").textContent = tempsText(message.temperatures);
       setJob(message.job);
       break;
@@ -367,6 +371,7 @@ function onMessage(message) {
       break;
     case "state":
       setState(message.state, message.message);
+      showPrompt($("prompt"), message.machine_status?.prompt, operator);
       if (message.state !== "printing" && message.state !== "paused") reloadQueue();
       break;
     case "temperatures":

@@ -42,7 +42,8 @@ class Endpoint:
     #: will do; "unbound": a role anywhere, but a key bound to a printer is refused.
     scope: str = "p"
     body: str = ""  # "json:{...}", "file" (multipart G-code), "raw"
-    #: The printer's state the call needs: "", "printing", "paused", "waitstart".
+    #: The printer's state the call needs: "", "printing", "paused", "waitstart",
+    #: "prompt" (paused in M600, the firmware's prompt shown).
     state: str = ""
     #: A GET that changes something: only API keys may (sessions must POST).
     acts: bool = False
@@ -121,6 +122,7 @@ ENDPOINTS = [
     ep("POST", "/printer/disconnect/p", OPERATOR),
     ep("POST", "/printer/bedclear/p", OPERATOR, state="waitstart"),
     ep("POST", "/printer/emergency/p", OPERATOR),
+    ep("POST", "/printer/prompt/p", OPERATOR, body='json:{"choice": 0}', state="prompt"),
     ep("POST", "/printer/queue/p", OPERATOR, body='json:{"order": []}'),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
     ep("GET", "/printer/api/p?a=listModelGroups", VIEWER),
@@ -229,7 +231,16 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
     if state in ("printing", "paused"):
         running = enqueue_job(p, world.source, name="running.gcode")
         Job.objects.filter(pk=running.pk).update(state=state)
-    if state:
+    if state == "prompt":
+        prompt = {
+            "message": "Nozzle Parked",
+            "choices": ["Continue"],
+            "answerable": True,
+        }
+        Printer.objects.filter(pk=p.pk).update(
+            state="paused", machine_status={"prompt": prompt}
+        )
+    elif state:
         Printer.objects.filter(pk=p.pk).update(state=state)
     user = world.users.get(caller) or world.users["operator"]
     upload = uploads.open_upload(p, "part.gcode", user=user)

@@ -127,6 +127,35 @@ def test_pause_runs_pause_script_and_resume_continues_after_resume_script():
     assert stream.outcome == "completed"
 
 
+def test_a_pause_and_resume_the_printer_did_itself_run_no_scripts():
+    host, wire = make_host(pause="G1 Z5", resume="G1 Z-5")
+    stream = file_stream(6)
+    host.submit(stream)
+    wire.turn()
+    wire.turn()
+
+    assert host.request_pause(script=False) == ""
+    wire.run(10)
+    assert stream.state is CommandState.PAUSED
+    assert host.request_resume(script=False) == ""
+    wire.run(20)
+    assert "G1 Z5" not in wire.sent and "G1 Z-5" not in wire.sent
+    assert stream.outcome == "completed"
+
+
+def test_a_resume_before_the_pause_was_applied_keeps_the_stream_going():
+    host, wire = make_host(pause="G1 Z5")
+    stream = file_stream(6)
+    host.submit(stream)
+    wire.turn()
+
+    assert host.request_pause(script=False) == ""
+    assert host.request_resume(script=False) == ""  # //action:paused, resumed at once
+    wire.run(20)
+    assert stream.outcome == "completed"
+    assert "G1 Z5" not in wire.sent
+
+
 def test_abort_runs_abort_script_and_sends_no_more_stream_lines():
     host, wire = make_host(abort="M104 S0\nM84")
     stream = file_stream(100)
