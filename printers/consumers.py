@@ -337,11 +337,16 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             self.spawn(self.answer(feed, row.pk, row.text))
 
     async def action(self, feed: Feed, name: Any) -> None:
-        if name not in ACTIONS:
+        """One of ACTIONS, or `prompt:<n>` to answer the printer's dialog."""
+        answer = isinstance(name, str) and name.startswith("prompt:")
+        if name not in ACTIONS and not answer:
             raise ValueError(
-                f"unknown action {name!r}; use one of {', '.join(ACTIONS)}"
+                f"unknown action {name!r}; use one of {', '.join(ACTIONS)}, prompt:<n>"
             )
-        row = await database_sync_to_async(run_action)(self.caller, feed.printer, name)
+        audit = {"audit_as": "prompt", "detail": f"button {name[7:]}"} if answer else {}
+        row = await database_sync_to_async(run_action)(
+            self.caller, feed.printer, name, **audit
+        )
         reply = {"type": "queued", "printer": feed.printer.slug, "id": row.pk}
         await self.send_json({**reply, "action": name})
 

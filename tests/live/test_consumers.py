@@ -289,20 +289,21 @@ def test_actions_and_the_emergency_stop_are_queued_and_audited(
     async def scenario() -> dict:
         client = await connect(f"/ws/printers/mk3/?apikey={key}")
         await client.receive_json_from(timeout=TIMEOUT)
-        for action in ("pause", "emergency_stop", "dance"):
+        for action in ("pause", "emergency_stop", "prompt:1", "dance", "prompt:x"):
             await client.send_json_to({"action": action})
-        await until(client, "queued")
-        await until(client, "queued")
-        error = await until(client, "error")
+        for _ in range(3):
+            await until(client, "queued")
+        errors = [await until(client, "error") for _ in range(2)]
         await client.disconnect()
-        return error
+        return errors
 
-    error = run(scenario())
+    unknown, bad_choice = run(scenario())
     rows = list(QueuedCommand.objects.values_list("kind", "text"))
-    assert rows == [("action", "pause"), ("emergency", "M112")]
-    assert "unknown action 'dance'" in error["message"]
+    assert rows == [("action", "pause"), ("emergency", "M112"), ("action", "prompt:1")]
+    assert "unknown action 'dance'" in unknown["message"]
+    assert "button index" in bad_choice["message"]
     actions = set(AuditEntry.objects.values_list("action", flat=True))
-    assert actions == {"pause", "emergency_stop"}
+    assert actions == {"pause", "emergency_stop", "prompt"}
 
 
 def test_an_esp_reply_goes_to_the_asking_client_only(printer: Printer) -> None:
