@@ -29,9 +29,28 @@ class Job(models.Model):
         FAILED = "failed", "failed"
         INTERRUPTED = "interrupted", "interrupted"
 
+    class Kind(models.TextChoices):
+        #: printhost streams the stored file line by line (the usual job).
+        PRINT = "print", "print (streamed by printhost)"
+        #: The printer prints `sd_name` from its own SD card; printhost watches.
+        SD_PRINT = "sd_print", "print from the printer's SD card"
+        #: printhost writes the stored file onto the printer's card as `sd_name`.
+        SD_UPLOAD = "sd_upload", "copy to the printer's SD card"
+
     printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="jobs")
     name = models.CharField(max_length=255)
-    file = models.CharField(max_length=500, help_text="path under the job storage")
+    kind = models.CharField(max_length=16, choices=Kind.choices, default=Kind.PRINT)
+    file = models.CharField(
+        max_length=500,
+        blank=True,
+        help_text="path under the job storage (empty for a print from the SD card)",
+    )
+    sd_name = models.CharField(
+        max_length=100, blank=True, help_text="the file's name on the printer's SD card"
+    )
+    print_after = models.BooleanField(
+        default=False, help_text="SD upload: print the file from the card once written"
+    )
     size_bytes = models.BigIntegerField(default=0)
     line_count = models.BigIntegerField(default=0, help_text="commands to send")
     sha256 = models.CharField(max_length=64, blank=True)
@@ -74,6 +93,11 @@ class Job(models.Model):
         return inside(Path(settings.JOB_STORAGE_DIR), self.file)
 
     @property
+    def on_sd_card(self) -> bool:
+        """The job is about the printer's own SD card (printed from it, or copied to it)."""
+        return self.kind != Job.Kind.PRINT
+
+    @property
     def progress(self) -> float:
         """Share of the file's bytes acknowledged by the firmware, 0..1."""
         if self.size_bytes <= 0:
@@ -109,6 +133,8 @@ class Job(models.Model):
             "id": self.pk,
             "printer": self.printer.slug,
             "name": self.name,
+            "kind": self.kind,
+            "sd_name": self.sd_name,
             "state": self.state,
             "message": self.message,
             "size": self.size_bytes,

@@ -151,18 +151,24 @@ class ChecksumMismatch(BadGcode):
 
 def delete_job_file(job: Job) -> None:
     """Remove a job's file unless another job still uses it (reprints share files)."""
+    if not job.file:  # a print from the printer's SD card has no stored file
+        return
     others = Job.objects.filter(file=job.file).exclude(pk=job.pk).exists()
     if not others:
         job.path.unlink(missing_ok=True)
 
 
 def reprint(job: Job, *, origin: str = "", user: AbstractBaseUser | None = None) -> Job:
-    """Queue the same stored file again as a new job at the end of the queue."""
-    if not job.path.is_file():
+    """Queue the same job again (its stored file, or its file on the SD card) at the
+    end of the queue."""
+    if job.file and not job.path.is_file():
         raise BadGcode(f"{job.name}: the stored file is gone")
     return Job.objects.create(
         printer=job.printer,
         name=job.name,
+        kind=job.kind,
+        sd_name=job.sd_name,
+        print_after=job.print_after,
         file=job.file,
         size_bytes=job.size_bytes,
         line_count=job.line_count,
@@ -266,15 +272,19 @@ def request_action(printer: Printer, action: str, *, origin: str = "") -> Queued
     it against the dialog shown).
     """
     prompt = f"{QueuedCommand.Action.PROMPT}:"
-    if action.startswith(prompt):
+    if action.startswith(f"{QueuedCommand.Action.SD_DELETE}:"):
+        from jobs.sdcard import card_name
+
+        card_name(action.partition(":")[2])  # SdRefused (a ValueError) if unusable
+    elif action.startswith(prompt):
         choice = action[len(prompt) :]
         if not (choice.isdigit() and len(choice) <= 2):
             raise ValueError(
                 f"the prompt's choice must be a button index, not {choice!r}"
             )
-    elif (
-        action not in QueuedCommand.Action.values
-        or action == QueuedCommand.Action.PROMPT
+    elif action not in QueuedCommand.Action.values or action in (
+        QueuedCommand.Action.PROMPT,
+        QueuedCommand.Action.SD_DELETE,
     ):
         raise ValueError(
             f"unknown action {action!r}; use one of {', '.join(QueuedCommand.Action.values)}"

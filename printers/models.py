@@ -160,6 +160,9 @@ class Printer(models.Model):
     capabilities = models.JSONField(default=dict, blank=True)
     temperatures = models.JSONField(default=dict, blank=True)
     machine_status = models.JSONField(default=dict, blank=True)
+    #: The printer's own SD card as its last M20 listed it: {"present", "files":
+    #: [{"name", "size", "long_name"}], "listed" (ISO time), "message"}.
+    sd_card = models.JSONField(default=dict, blank=True)
     lease_owner = models.CharField(max_length=100, blank=True)
     lease_expires_at = models.DateTimeField(null=True, blank=True)
     worker_seen_at = models.DateTimeField(null=True, blank=True)
@@ -207,6 +210,10 @@ class QueuedCommand(models.Model):
         DISCONNECT = "disconnect", "disconnect"
         #: `prompt:<n>`: answer the firmware's host prompt with button n (M876).
         PROMPT = "prompt", "answer the printer's prompt"
+        #: Read the printer's SD card listing again (M20).
+        SD_LIST = "sd_list", "list the SD card"
+        #: `sd_delete:<name>`: delete a file from the printer's SD card (M30).
+        SD_DELETE = "sd_delete", "delete from the SD card"
 
     class State(models.TextChoices):
         PENDING = "pending", "pending"

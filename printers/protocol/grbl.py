@@ -102,6 +102,8 @@ class GrblProtocol:
         self.compact = compact
         #: Part of the LinkProtocol contract; GRBL streams the same either way.
         self.printing = False
+        #: No file writing on GRBL; kept for the LinkProtocol contract.
+        self.writing_file = False
         #: Command lines written so far (not counting realtime bytes or polls).
         self.lines_sent = 0
         #: The latest status report, or None before the first.

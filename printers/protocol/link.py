@@ -28,6 +28,9 @@ class LinkProtocol(Protocol):
 
     #: True while a job is streaming (Marlin numbers lines "only while printing").
     printing: bool
+    #: True while the firmware writes every line into a file (Marlin's M28): the
+    #: protocol sends nothing of its own then.
+    writing_file: bool
 
     def can_send(self, text: str) -> bool:
         """True when *text* may go now without breaking the window or a sync rule."""

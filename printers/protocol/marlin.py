@@ -116,7 +116,8 @@
 #       way: a numbered M105 probe goes out beyond the window (during a re-send,
 #       the next line to re-send instead), at most 3 live. Lost ok -> T5; lost or
 #       cut line -> the probe brings its Resend. Nothing is sent twice. Off for
-#       RepRapFirmware (FIRMWARE_NAME), which does not check the sequence.
+#       RepRapFirmware (FIRMWARE_NAME), which does not check the sequence, and
+#       while writing_file (M28 writes every line it gets into the file).
 #
 # Replies merged by a lost line end are split first (`okok`, `Resend: 5ok`).
 #
@@ -247,6 +248,16 @@ class MarlinProtocol:
     def bytes_in_flight(self) -> int:
         """Bytes charged to the firmware's RX buffer: live lines plus draining dead ones."""
         return self._window.bytes_in_flight
+
+    @property
+    def writing_file(self) -> bool:
+        """True while the firmware writes every line into a file (M28 to its SD card):
+        the protocol then sends nothing of its own (no probes, T6)."""
+        return self._recovery.prober.writing_file
+
+    @writing_file.setter
+    def writing_file(self, value: bool) -> None:
+        self._recovery.prober.writing_file = value
 
     @property
     def resends(self) -> int:

@@ -33,6 +33,9 @@ class Prober:
         self._window, self._after = window, after
         #: False for firmware that does not check the sequence (RepRapFirmware).
         self.probing = True
+        #: True while the firmware writes every line into a file (M28): a probe
+        #: would land in the file.
+        self.writing_file = False
         #: Statistics: probes sent.
         self.probes = 0
         self._probed_at: float | None = None
@@ -41,7 +44,14 @@ class Prober:
         """T6: when to probe; None while a long command or busy: may hold the ok."""
         window, after = self._window, self._after
         live = window.live
-        if after is None or not self.probing or not live or busy or window.queued:
+        if (
+            after is None
+            or not self.probing
+            or self.writing_file
+            or not live
+            or busy
+            or window.queued
+        ):
             return None
         oldest = live[0]
         if (

@@ -6,6 +6,7 @@ from printers.streaming.host import StreamHost
 from printers.streaming.streams import (
     CommandState,
     Line,
+    PrinterSide,
     QueueState,
     Stream,
     StreamType,
@@ -15,6 +16,7 @@ from printers.streaming.streams import (
 __all__ = [
     "CommandState",
     "Line",
+    "PrinterSide",
     "QueueState",
     "Stream",
     "StreamHost",

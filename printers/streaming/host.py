@@ -139,6 +139,9 @@ class StreamHost:
             return "no stream is running"
         if stream.state in (S.PAUSE, S.PAUSED):
             return "the stream is already paused"
+        side = stream.printer_side
+        if side is not None and not side.pausable:
+            return side.why_not or "this stream cannot pause"
         self._requested, self._with_script = "pause", script
         return ""
 
@@ -156,6 +159,16 @@ class StreamHost:
             return "no stream is paused"
         self._requested, self._with_script = "resume", script
         return ""
+
+    def release(self, stream: Stream) -> None:
+        """The printer confirmed what *stream* holds for (M28 opened the file)."""
+        if stream.printer_side is not None:
+            stream.printer_side.released = True
+
+    def printer_done(self, stream: Stream) -> None:
+        """The printer finished the file *stream* handed it (`Done printing file`)."""
+        if stream.printer_side is not None:
+            stream.printer_side.done = True
 
     def request_abort(self, message: str = "aborted by request") -> str:
         if self.current_stream is None:
@@ -234,9 +247,12 @@ class StreamHost:
     @property
     def active_stream(self) -> Stream | None:
         """Emergency > script queue > stream queue: the stream whose lines go next."""
+        current = self.current_stream
+        if current is not None and _exclusive(current):
+            return current  # scripts wait: the firmware would write them to the file
         if self.script_queue:
             return self.script_queue[0]
-        return self.stream_queue[0] if self.stream_queue else None
+        return current
 
     @property
     def current_stream(self) -> Stream | None:
@@ -272,8 +288,11 @@ class StreamHost:
     def _on_ready_to_read_cursor(self, stream: Stream, now: float) -> bool:
         if self._take_request(stream):
             return True
+        if _holding(stream):
+            stream.move(S.WAIT_FOR_ACK)
+            return True
         if stream.eof:
-            stream.move(S.END if stream.drained else S.WAIT_FOR_ACK)
+            stream.move(S.END if _complete(stream) else S.WAIT_FOR_ACK)
             if stream.finished:
                 self._finish(stream, "completed")
             return stream.finished
@@ -319,7 +338,13 @@ class StreamHost:
     def _on_wait_for_ack(self, stream: Stream, now: float) -> bool:
         if self._take_request(stream):
             return True
-        if stream.eof and stream.drained:
+        if _holding(stream):
+            if stream.acked < stream.sent:
+                return False
+            assert stream.printer_side is not None
+            self._fail(stream, stream.printer_side.hold_reason or "not confirmed")
+            return True
+        if stream.eof and _complete(stream):
             stream.move(S.END)
             self._finish(stream, "completed")
             return True
@@ -335,7 +360,9 @@ class StreamHost:
 
     def _on_pause(self, stream: Stream, now: float) -> bool:
         if self._with_script:
-            self.run_script("pause")
+            self._control(stream, "pause")
+            if _scripts(stream):
+                self.run_script("pause")
         self._with_script = True
         stream.move(S.PAUSED)
         self._events.append(StreamPaused(stream))
@@ -346,24 +373,51 @@ class StreamHost:
 
     def _on_resume(self, stream: Stream, now: float) -> bool:
         if self._with_script:
-            self.run_script("resume")
+            if _scripts(stream):
+                self.run_script("resume")
+            self._control(stream, "resume")
         self._with_script = True
         stream.move(S.READY_TO_READ_CURSOR)
         self._events.append(StreamResumed(stream))
         return True
 
     def _on_abort(self, stream: Stream, now: float) -> bool:
-        self.run_script("abort")
+        self._control(stream, "abort")
+        if _scripts(stream):
+            self.run_script("abort")
         stream.move(S.END)
         self._finish(stream, "aborted", self._abort_message)
         return True
 
     def _on_error(self, stream: Stream, now: float) -> bool:
+        side = stream.printer_side
+        if side is not None and (side.released or not side.hold_after):
+            # Stop the printer's part too: an SD print must not run on, and a file
+            # left open for writing would swallow every later command.
+            self._control(stream, "abort")
         stream.move(S.END)
         self._finish(stream, "failed", stream.message)
         return True
 
     # -- helpers ---------------------------------------------------------------
+
+    def _control(self, stream: Stream, action: str) -> None:
+        """Queue the printer's own command for *action* (M25, M24, M524, M29...).
+
+        An exclusive stream's control goes first: nothing queued behind it may reach
+        the firmware before the file is closed.
+        """
+        side = stream.printer_side
+        lines = lines_from_text(side.controls.get(action, "")) if side else []
+        if not lines:
+            return
+        control = Stream(
+            StreamType.MULTIPLE_COMMANDS, lines, name=f"{action} ({stream.name})"
+        )
+        if side is not None and side.exclusive:
+            self.script_queue.appendleft(control)
+        else:
+            self.script_queue.append(control)
 
     def _can_go(self, line: Line) -> bool:
         return line.text.startswith("[ESP") or self.protocol.can_send(line.text)
@@ -400,6 +454,34 @@ class StreamHost:
                 queue.popleft()
                 break
         self._events.append(StreamEnded(stream))
+
+
+def _exclusive(stream: Stream) -> bool:
+    """An exclusive stream that has started: only its lines may go."""
+    side = stream.printer_side
+    return side is not None and side.exclusive and stream.state not in (S.START, S.END)
+
+
+def _holding(stream: Stream) -> bool:
+    """The stream sent its lines up to the hold and waits for `release`."""
+    side = stream.printer_side
+    return (
+        side is not None
+        and side.hold_after > 0
+        and not side.released
+        and stream.sent >= side.hold_after
+    )
+
+
+def _complete(stream: Stream) -> bool:
+    """Every line acknowledged and, for a file the printer runs, the printer done."""
+    side = stream.printer_side
+    return stream.drained and (side is None or not side.runs_file or side.done)
+
+
+def _scripts(stream: Stream) -> bool:
+    side = stream.printer_side
+    return side is None or side.scripts
 
 
 _ALLOWED_FROM: dict[CommandState, frozenset[CommandState]] = {

@@ -154,6 +154,38 @@ _ids = itertools.count(1)
 
 
 @dataclass(eq=False)
+class PrinterSide:
+    """What the printer itself does for a stream, beyond taking its lines.
+
+    A print from the printer's SD card sends `M23 <name>`, `M24` and then the printer
+    runs the file by itself (*runs_file*): the stream stays until `StreamHost.
+    printer_done`. An upload to the card sends `M28 <name>`, the file's lines and
+    `M29`; it is *exclusive* (the firmware writes every line it gets into the file,
+    so nothing else may go until it ends) and holds after *hold_after* lines until
+    `StreamHost.release` (the printer said it opened the file: a line sent to a card
+    that failed to open would be run, not written); if every line before the hold is
+    acknowledged and no release came, the stream fails with *hold_reason*.
+
+    *controls* are the printer's own commands for `pause`, `resume` and `abort` (M25,
+    M24, M524; an upload's abort closes and deletes the file); they go before the
+    printer's pause and abort scripts and after its resume script, which run only
+    with *scripts*. Without *pausable*, a pause request is refused with *why_not*.
+    """
+
+    runs_file: bool = False
+    exclusive: bool = False
+    hold_after: int = 0
+    hold_reason: str = ""
+    controls: dict[str, str] = field(default_factory=dict)
+    scripts: bool = True
+    pausable: bool = True
+    why_not: str = ""
+    #: Set by StreamHost.release / printer_done.
+    released: bool = False
+    done: bool = False
+
+
+@dataclass(eq=False)
 class Stream:
     """A spooler job: `generate()` yields its lines; counters say how far it got.
 
@@ -174,6 +206,8 @@ class Stream:
     eof: bool = False
     outcome: str = ""
     message: str = ""
+    #: The printer's side of the stream (its SD card); None for a plain stream.
+    printer_side: PrinterSide | None = None
     _reader: Iterator[Line] | None = field(default=None, repr=False)
 
     def generate(self) -> Iterator[Line]:

@@ -173,6 +173,14 @@ def test_t6_no_probe_on_reprapfirmware_which_does_not_check_the_sequence() -> No
     assert proto.next_deadline() == 10.0
 
 
+def test_t6_no_probe_while_the_firmware_writes_lines_into_a_file() -> None:
+    proto = one_line()
+    proto.writing_file = True  # M28: an M105 would be written to the SD card
+    assert proto.next_deadline() == 10.0
+    proto.writing_file = False
+    assert proto.next_deadline() < 1.0
+
+
 def test_w4_a_line_asked_again_goes_alone() -> None:
     proto = MarlinProtocol(checksums="always", flow="buffered")
     proto.reset_line_numbers(0.0)
