@@ -51,6 +51,8 @@
 #   other Error:                  | -                                   | FirmwareError
 #   //action:, FIRMWARE_NAME:,    | -                                   | ActionCommand,
 #   Cap:, echo:, anything else    | -                                   | FirmwareInfo..
+#   Begin file list .. End file   | file names (`SKIP.GCO 12`), never   | Received
+#   list (M20)                    | replies; an ok ends the list too    |
 #
 # Resends (Marlin flushes its RX ring on a bad line; every line already behind it
 # then brings another Error + Resend for the same n, or nothing if it was flushed)
@@ -136,6 +138,7 @@ from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
     Busy,
     FirmwareReset,
+    LineKind,
     LinkFailed,
     Received,
     Sent,
@@ -210,6 +213,8 @@ class MarlinProtocol:
         self._rx = b""
         self._advanced, self._max_b = False, 0
         self._previous: Reply | None = None
+        #: Between M20's `Begin file list` and its end: lines are file names.
+        self._file_list = False
         self._window = LineWindow(rx_buffer=rx_buffer, baud=baud)
         self._recovery = Recovery(
             self._window,
@@ -399,6 +404,11 @@ class MarlinProtocol:
     # -- replies ---------------------------------------------------------------------
 
     def _handle_line(self, text: str) -> None:
+        if self._file_list and not text.startswith("ok"):
+            self._file_list = text != "End file list"
+            self._events.append(Received(text, LineKind.RESPONSE))
+            return
+        self._file_list = text == "Begin file list"
         reply = parse_response(text)
         self._events.append(Received(reply.text, reply.line_kind))
         if reply.kind not in (ReplyKind.OK, ReplyKind.RESEND, ReplyKind.SKIP):

@@ -8,7 +8,7 @@ line is not about the SD card. A file list spans many lines (`Begin file list` .
 The words are Marlin's (`Marlin/src/core/language.h`, `sd/cardreader.cpp`):
 
     M20 [L]          Begin file list / NAME.GCO 1234 [Long name.gcode] / End file list
-    M21              echo:SD card ok | echo:SD init fail | echo:No SD card
+    M21              echo:SD card ok | echo:SD init fail | echo:No SD card / No media
     M23 NAME.GCO     echo:Now fresh file: NAME.GCO / File opened: NAME.GCO Size: 1234
                      / File selected   | echo:open failed, File: NAME.GCO.
     M24 / M25        start or resume / pause the selected file
@@ -149,6 +149,7 @@ _CARD = {
     "SD card ok": True,
     "SD init fail": False,
     "No SD card": False,
+    "No media": False,
     "SD card released": False,
     "SD card inserted": True,
     "SD card removed": False,
@@ -180,7 +181,8 @@ class SdDialogue:
 
     def _list_line(self, line: str) -> SdEvent | None:
         assert self._listing is not None
-        if line == "End file list":
+        # M20's ok ends the list too, when line noise took `End file list` away.
+        if line == "End file list" or line == "ok" or line.startswith("ok "):
             files, self._listing = tuple(self._listing), None
             return SdListed(files)
         match = _LIST_ENTRY.match(line)

@@ -101,3 +101,31 @@ def test_progress_share_is_bounded():
 )
 def test_short_names_fit_eight_dot_three_and_avoid_taken_names(name, taken, short):
     assert short_name(name, taken) == short
+
+
+def test_m20s_ok_ends_a_file_list_whose_end_line_was_lost():
+    dialogue = SdDialogue()
+    events = feed(dialogue, "Begin file list", "CUBE.GCO 1024", "ok", "T:20 /0")
+    assert events == [SdListed((SdFile("CUBE.GCO", 1024),))]
+    assert not dialogue.listing
+
+
+def test_file_names_that_look_like_replies_do_not_disturb_the_flow():
+    from printers.protocol.events import Ack, FirmwareReset, Received
+    from printers.protocol.marlin import MarlinProtocol
+
+    proto = MarlinProtocol(checksums="never", flow="ping_pong")
+    proto.send("M20 L", 0.0, tag="list")
+    proto.data_to_send()
+    names = ["REND.GCO 12", "SKIP.GCO 3", "RESEND.GCO 5", "START 1", "RS 1"]
+    reply = "\n".join(["Begin file list", *names, "End file list", "ok", ""])
+    proto.receive_data(reply.encode(), 0.1)
+
+    events = []
+    while (event := proto.next_event()) is not None:
+        events.append(event)
+    received = [e.text for e in events if isinstance(e, Received)]
+    assert received == ["Begin file list", *names, "End file list", "ok"]
+    assert [e for e in events if isinstance(e, Ack)] == [Ack("list")]
+    assert not [e for e in events if isinstance(e, FirmwareReset)]
+    assert proto.in_flight == 0
