@@ -11,7 +11,9 @@
 #
 # Framing
 #   F1  A line is numbered (`N<n> <text>*<xor>`) when checksums == "always", or
-#       == "printing" and self.printing, or when it is an M110 (its own N sets n).
+#       == "printing" and self.printing, or while writing_file (a line garbled on
+#       its way into a file on the SD card would never be noticed), or when it is
+#       an M110 (its own N sets n).
 #   F2  The first numbered line after construction, abandon() or `start` is preceded
 #       by an automatic internal `N0 M110 N0` (tag None, never Acked).
 #   F3  An M110 goes alone: only with nothing live, and nothing follows it before its
@@ -384,8 +386,10 @@ class MarlinProtocol:
     # -- framing and the window ------------------------------------------------------
 
     def _new_line(self, text: str, tag: object) -> Line:
-        numbered = self._checksums == "always" or (
-            self._checksums == "printing" and self.printing
+        numbered = (
+            self._checksums == "always"
+            or (self._checksums == "printing" and self.printing)
+            or self.writing_file
         )
         return new_line(text, tag, numbered=numbered)
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from printers.streaming.host import StreamHost
+from printers.streaming.printer_side import PrinterSide
 from printers.streaming.streams import (
     CommandState,
     Line,
-    PrinterSide,
     QueueState,
     Stream,
     StreamType,

@@ -11,11 +11,28 @@ its command state until it has to wait. Step 1 (external requests) arrives throu
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from printers.protocol.errors import CommandRejected
+from printers.streaming.host_events import (
+    CommandAnswered,
+    EspCommand,
+    HostEvent,
+    StreamEnded,
+    StreamPaused,
+    StreamResumed,
+    StreamStarted,
+)
+from printers.streaming.printer_side import (
+    complete,
+    control_stream,
+    exclusive_now,
+    holding,
+    runs_scripts,
+)
 from printers.streaming.streams import (
+    REQUEST_MOVES,
+    REQUESTS_FROM,
     CommandState,
     Line,
     QueueState,
@@ -28,56 +45,6 @@ if TYPE_CHECKING:
     from printers.protocol.link import LinkProtocol
 
 S = CommandState
-
-
-@dataclass(frozen=True, slots=True)
-class StreamStarted:
-    stream: Stream
-
-
-@dataclass(frozen=True, slots=True)
-class StreamPaused:
-    stream: Stream
-
-
-@dataclass(frozen=True, slots=True)
-class StreamResumed:
-    stream: Stream
-
-
-@dataclass(frozen=True, slots=True)
-class StreamEnded:
-    """A stream left its queue; `stream.outcome` is completed, aborted or failed."""
-
-    stream: Stream
-
-
-@dataclass(frozen=True, slots=True)
-class EspCommand:
-    """An `[ESPxxx]` line was read from a stream: the worker answers it to the origin."""
-
-    stream: Stream
-    text: str
-
-
-@dataclass(frozen=True, slots=True)
-class CommandAnswered:
-    """A script line got its ack (ok) or was refused (message)."""
-
-    stream: Stream
-    line: Line
-    ok: bool
-    message: str = ""
-
-
-HostEvent = (
-    StreamStarted
-    | StreamPaused
-    | StreamResumed
-    | StreamEnded
-    | EspCommand
-    | CommandAnswered
-)
 
 
 class StreamHost:
@@ -248,7 +215,7 @@ class StreamHost:
     def active_stream(self) -> Stream | None:
         """Emergency > script queue > stream queue: the stream whose lines go next."""
         current = self.current_stream
-        if current is not None and _exclusive(current):
+        if current is not None and exclusive_now(current):
             return current  # scripts wait: the firmware would write them to the file
         if self.script_queue:
             return self.script_queue[0]
@@ -288,11 +255,11 @@ class StreamHost:
     def _on_ready_to_read_cursor(self, stream: Stream, now: float) -> bool:
         if self._take_request(stream):
             return True
-        if _holding(stream):
+        if holding(stream):
             stream.move(S.WAIT_FOR_ACK)
             return True
         if stream.eof:
-            stream.move(S.END if _complete(stream) else S.WAIT_FOR_ACK)
+            stream.move(S.END if complete(stream) else S.WAIT_FOR_ACK)
             if stream.finished:
                 self._finish(stream, "completed")
             return stream.finished
@@ -338,13 +305,13 @@ class StreamHost:
     def _on_wait_for_ack(self, stream: Stream, now: float) -> bool:
         if self._take_request(stream):
             return True
-        if _holding(stream):
+        if holding(stream):
             if stream.acked < stream.sent:
                 return False
             assert stream.printer_side is not None
             self._fail(stream, stream.printer_side.hold_reason or "not confirmed")
             return True
-        if stream.eof and _complete(stream):
+        if stream.eof and complete(stream):
             stream.move(S.END)
             self._finish(stream, "completed")
             return True
@@ -361,7 +328,7 @@ class StreamHost:
     def _on_pause(self, stream: Stream, now: float) -> bool:
         if self._with_script:
             self._control(stream, "pause")
-            if _scripts(stream):
+            if runs_scripts(stream):
                 self.run_script("pause")
         self._with_script = True
         stream.move(S.PAUSED)
@@ -373,7 +340,7 @@ class StreamHost:
 
     def _on_resume(self, stream: Stream, now: float) -> bool:
         if self._with_script:
-            if _scripts(stream):
+            if runs_scripts(stream):
                 self.run_script("resume")
             self._control(stream, "resume")
         self._with_script = True
@@ -383,7 +350,7 @@ class StreamHost:
 
     def _on_abort(self, stream: Stream, now: float) -> bool:
         self._control(stream, "abort")
-        if _scripts(stream):
+        if runs_scripts(stream):
             self.run_script("abort")
         stream.move(S.END)
         self._finish(stream, "aborted", self._abort_message)
@@ -402,21 +369,13 @@ class StreamHost:
     # -- helpers ---------------------------------------------------------------
 
     def _control(self, stream: Stream, action: str) -> None:
-        """Queue the printer's own command for *action* (M25, M24, M524, M29...).
-
-        An exclusive stream's control goes first: nothing queued behind it may reach
-        the firmware before the file is closed.
-        """
+        """Queue the printer's own command for *action*; an exclusive stream's first
+        (nothing queued behind it may reach the firmware before its file is closed)."""
+        control = control_stream(stream, action)
         side = stream.printer_side
-        lines = lines_from_text(side.controls.get(action, "")) if side else []
-        if not lines:
-            return
-        control = Stream(
-            StreamType.MULTIPLE_COMMANDS, lines, name=f"{action} ({stream.name})"
-        )
-        if side is not None and side.exclusive:
+        if control is not None and side is not None and side.exclusive:
             self.script_queue.appendleft(control)
-        else:
+        elif control is not None:
             self.script_queue.append(control)
 
     def _can_go(self, line: Line) -> bool:
@@ -427,13 +386,8 @@ class StreamHost:
         if not self._requested or stream is not self.current_stream:
             return False
         wanted, self._requested = self._requested, ""
-        moves = {
-            "pause": S.PAUSE,
-            "abort": S.ABORT,
-            "resume": S.RESUME,
-        }
-        target = moves[wanted]
-        if target not in _ALLOWED_FROM[stream.state]:
+        target = REQUEST_MOVES[wanted]
+        if target not in REQUESTS_FROM[stream.state]:
             return False
         stream.move(target)
         return True
@@ -454,39 +408,3 @@ class StreamHost:
                 queue.popleft()
                 break
         self._events.append(StreamEnded(stream))
-
-
-def _exclusive(stream: Stream) -> bool:
-    """An exclusive stream that has started: only its lines may go."""
-    side = stream.printer_side
-    return side is not None and side.exclusive and stream.state not in (S.START, S.END)
-
-
-def _holding(stream: Stream) -> bool:
-    """The stream sent its lines up to the hold and waits for `release`."""
-    side = stream.printer_side
-    return (
-        side is not None
-        and side.hold_after > 0
-        and not side.released
-        and stream.sent >= side.hold_after
-    )
-
-
-def _complete(stream: Stream) -> bool:
-    """Every line acknowledged and, for a file the printer runs, the printer done."""
-    side = stream.printer_side
-    return stream.drained and (side is None or not side.runs_file or side.done)
-
-
-def _scripts(stream: Stream) -> bool:
-    side = stream.printer_side
-    return side is None or side.scripts
-
-
-_ALLOWED_FROM: dict[CommandState, frozenset[CommandState]] = {
-    S.READY_TO_READ_CURSOR: frozenset({S.PAUSE, S.ABORT}),
-    S.WAIT_FOR_ACK: frozenset({S.PAUSE, S.ABORT}),
-    S.RESEND_GCODE_COMMAND: frozenset({S.PAUSE, S.ABORT}),
-    S.PAUSED: frozenset({S.RESUME, S.ABORT}),
-}

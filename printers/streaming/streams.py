@@ -39,6 +39,8 @@ from printers.protocol.errors import LocalProtocolError
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator
 
+    from printers.streaming.printer_side import PrinterSide
+
 
 class StreamType(enum.Enum):
     """ESP3D's stream types; `/sd/` and `/fs/` both name the printer's job storage."""
@@ -133,6 +135,17 @@ TRANSITIONS: dict[CommandState, frozenset[CommandState]] = {
 }
 
 
+#: Requests (pause, resume, abort) and the state each one moves a stream to; a
+#: request is taken only in the states REQUESTS_FROM allows it from.
+REQUEST_MOVES = {"pause": _S.PAUSE, "abort": _S.ABORT, "resume": _S.RESUME}
+REQUESTS_FROM: dict[CommandState, frozenset[CommandState]] = {
+    _S.READY_TO_READ_CURSOR: frozenset({_S.PAUSE, _S.ABORT}),
+    _S.WAIT_FOR_ACK: frozenset({_S.PAUSE, _S.ABORT}),
+    _S.RESEND_GCODE_COMMAND: frozenset({_S.PAUSE, _S.ABORT}),
+    _S.PAUSED: frozenset({_S.RESUME, _S.ABORT}),
+}
+
+
 @dataclass(frozen=True, slots=True)
 class Line:
     """One command of a stream: its index among the stream's commands and file offset."""
@@ -151,38 +164,6 @@ def lines_from_text(text: str) -> list[Line]:
 
 
 _ids = itertools.count(1)
-
-
-@dataclass(eq=False)
-class PrinterSide:
-    """What the printer itself does for a stream, beyond taking its lines.
-
-    A print from the printer's SD card sends `M23 <name>`, `M24` and then the printer
-    runs the file by itself (*runs_file*): the stream stays until `StreamHost.
-    printer_done`. An upload to the card sends `M28 <name>`, the file's lines and
-    `M29`; it is *exclusive* (the firmware writes every line it gets into the file,
-    so nothing else may go until it ends) and holds after *hold_after* lines until
-    `StreamHost.release` (the printer said it opened the file: a line sent to a card
-    that failed to open would be run, not written); if every line before the hold is
-    acknowledged and no release came, the stream fails with *hold_reason*.
-
-    *controls* are the printer's own commands for `pause`, `resume` and `abort` (M25,
-    M24, M524; an upload's abort closes and deletes the file); they go before the
-    printer's pause and abort scripts and after its resume script, which run only
-    with *scripts*. Without *pausable*, a pause request is refused with *why_not*.
-    """
-
-    runs_file: bool = False
-    exclusive: bool = False
-    hold_after: int = 0
-    hold_reason: str = ""
-    controls: dict[str, str] = field(default_factory=dict)
-    scripts: bool = True
-    pausable: bool = True
-    why_not: str = ""
-    #: Set by StreamHost.release / printer_done.
-    released: bool = False
-    done: bool = False
 
 
 @dataclass(eq=False)

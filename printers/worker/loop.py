@@ -36,6 +36,7 @@ from printers.worker.prompts import HostPrompts
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
+from printers.worker.sdcard import SdCardWatch
 from printers.worker.status import PrinterStatus
 
 if TYPE_CHECKING:
@@ -87,6 +88,8 @@ class PrinterWorker(Reactions):
         self.emergency_parser: bool | None = None
         #: The firmware's host prompt (//action:prompt_*), per connection.
         self.prompts = HostPrompts(self.status)
+        #: The printer's own SD card: listing, prints from it, uploads to it.
+        self.sd = SdCardWatch(self)
         #: An emergency DTR reset is under way: its reset banner keeps the halt.
         self.expect_reset = False
         self.last_stream_error = ""
@@ -210,6 +213,7 @@ class PrinterWorker(Reactions):
         if self.transport is None:
             return
         self.protocol.printing = self.host.printing
+        self.protocol.writing_file = self.sd.writing()
         self.host.advance(now)
         self.handle_host_events(now)
         data = self.protocol.data_to_send()
@@ -230,6 +234,7 @@ class PrinterWorker(Reactions):
         self.requests.poll(now)
         self.maybe_claim_job(now)
         self.poll_temperature(now)
+        self.sd.poll(now)
         if now >= self.next_progress:
             self.next_progress = now + PROGRESS_SECONDS
             self.save_progress()
@@ -286,6 +291,7 @@ class PrinterWorker(Reactions):
         self.autoreport = False
         self.emergency_parser, self.expect_reset = None, False
         self.prompts.clear()
+        self.sd.reset()
         self.note(f"connected to {self.printer.port} at {self.printer.baud} baud")
         self.hello(now)
         self.update_state()

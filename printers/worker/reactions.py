@@ -45,6 +45,8 @@ class Reactions:
                 self.log.add(event.text, LineKind.COMMAND)
             elif isinstance(event, ev.Received):
                 self.log.add(event.text, event.kind)
+                if not self.printer.is_grbl:
+                    self.sd.receive(event.text)
             elif isinstance(event, ev.Ack):
                 self.host.handle_ack(event.tag)
             else:
@@ -91,6 +93,7 @@ class Reactions:
 
     def _on_capability(self: PrinterWorker, name: str, *, enabled: bool) -> None:
         self._merge_capabilities({name: enabled})
+        self.sd.on_capability(name, enabled=enabled)
         if name == "EMERGENCY_PARSER":
             self.emergency_parser = enabled
         interval = self.printer.temperature_interval
@@ -202,6 +205,7 @@ class Reactions:
         self._alarm_before_reset = self.grbl_alarm
         self.grbl_alarm = ""
         self.prompts.clear()
+        self.sd.reset()
         if self.expect_reset:  # our emergency DTR pulse: the stop's message stays
             self.expect_reset = False
         else:
@@ -252,14 +256,17 @@ class Reactions:
             )
         with self.lease.held():
             state = spool.finish(stream)
-        self.waitstart = not self.printer.auto_start
+        upload = stream.printer_side is not None and stream.printer_side.exclusive
+        if not upload:  # a copy to the SD card printed nothing: no bed to clear
+            self.waitstart = not self.printer.auto_start
         text = f"job {stream.ref} ({stream.name}) {state.label}"
         self.note(f"{text}: {stream.message}" if stream.message else text)
         if state == Job.State.FAILED:
             self.last_stream_error = stream.message
             self.stop_motion_after_error()
-        if state == Job.State.COMPLETED:
+        if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
+        self.sd.job_ended(stream, state)
 
     # -- jobs and periodic commands ---------------------------------------------
 
@@ -273,16 +280,32 @@ class Reactions:
             job = spool.claim_next(self.printer.pk)
         if job is None:
             return
-        if not job.path.is_file():
+        problem = self._cannot_start(job)
+        if problem:
             with self.lease.held():
-                spool.fail_job(job, f"the job's file {job.file} is missing")
-            self.note(f"job {job.pk} failed: its file is missing")
+                spool.fail_job(job, problem)
+            self.note(f"job {job.pk} failed: {problem}")
             return
         self.protocol.reset_line_numbers(now)
         self.journal.start_job()
-        self.host.run_script("start")
-        self.host.submit(spool.stream_for(job))
+        if job.kind == Job.Kind.SD_PRINT:
+            stream = self.sd.print_stream(job)
+        elif job.kind == Job.Kind.SD_UPLOAD:
+            stream = self.sd.upload_stream(job)
+        else:
+            stream = spool.stream_for(job)
+        if job.kind != Job.Kind.SD_UPLOAD:
+            self.host.run_script("start")
+        self.host.submit(stream)
         self.update_state()
+
+    def _cannot_start(self: PrinterWorker, job: Job) -> str:
+        """Why a claimed job cannot start, or ""."""
+        if job.on_sd_card and self.printer.is_grbl:
+            return "GRBL has no SD card to print from or copy to"
+        if job.kind != Job.Kind.SD_PRINT and not job.path.is_file():
+            return f"the job's file {job.file} is missing"
+        return ""
 
     def save_progress(self: PrinterWorker) -> None:
         stream = self.host.current_stream

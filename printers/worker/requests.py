@@ -110,6 +110,9 @@ class RequestPoller:
         who = f" by {origin}" if origin else ""
         if action.startswith(f"{QueuedCommand.Action.PROMPT}:"):
             return self._answer_prompt(action.partition(":")[2], who)
+        if action.startswith(f"{QueuedCommand.Action.SD_DELETE}:"):
+            error = worker.sd.delete(action.partition(":")[2])
+            return f"error: {error}" if error else "ok"
         match action:
             case QueuedCommand.Action.PAUSE:
                 error = host.request_pause()
@@ -123,6 +126,8 @@ class RequestPoller:
                 worker.stay_offline, worker.next_connect = False, 0.0
                 worker.disconnect(f"reconnect asked{who}")
                 error = ""
+            case QueuedCommand.Action.SD_LIST:
+                error = worker.sd.list_card()
             case QueuedCommand.Action.DISCONNECT:
                 worker.stay_offline = True
                 worker.disconnect(f"disconnected{who}")

@@ -40,10 +40,7 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
                 "lines_sent": journaled.sent,
                 "bytes_acked": journaled.bytes_acked,
             }
-        job.message = (
-            f"interrupted: the worker stopped at line {job.lines_acked} of "
-            f"{job.line_count}; not restarted (clear the bed and requeue it)"
-        )
+        job.message = _interrupted(job)
         Job.objects.filter(pk=job.pk, state__in=ACTIVE_STATES).update(
             state=Job.State.INTERRUPTED,
             message=job.message,
@@ -52,6 +49,23 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
         )
         broadcast.publisher().job(job.pk)
     return jobs
+
+
+def _interrupted(job: Job) -> str:
+    if job.kind == Job.Kind.SD_PRINT:
+        return (
+            f"interrupted: the worker stopped while the printer printed {job.sd_name} "
+            "from its SD card; reconnecting usually resets the printer, so check it"
+        )
+    if job.kind == Job.Kind.SD_UPLOAD:
+        return (
+            f"interrupted: the worker stopped while copying to {job.sd_name} on the "
+            "SD card; the file there is incomplete: copy it again"
+        )
+    return (
+        f"interrupted: the worker stopped at line {job.lines_acked} of "
+        f"{job.line_count}; not restarted (clear the bed and requeue it)"
+    )
 
 
 def claim_next(printer_id: int) -> Job | None:
