@@ -23,6 +23,11 @@ SLOW_MOVES = "G21\nG90\nM83\n" + "".join(
     f"G1 X{20 * (i % 2) + 100} Y100 E0.5 F600\n" for i in range(200)
 )
 
+#: Half-second moves: where only the order matters, not how long a move takes.
+QUICK_MOVES = "G21\nG90\nM83\n" + "".join(
+    f"G1 X{5 * (i % 2) + 5} Y0 E0.5 F600\n" for i in range(200)
+)
+
 
 def _printer_on_rfc2217(settings, sim_factory, make_printer, *parser: str) -> tuple:
     sim = sim_factory("marlin", "--time-scale", "1", "--tcp", "127.0.0.1:0", *parser)
@@ -36,7 +41,7 @@ def _printer_on_rfc2217(settings, sim_factory, make_printer, *parser: str) -> tu
 
 def _planner_full(sim, worker: PrinterWorker) -> None:
     wait_for(
-        lambda: len(job_lines(sim)) > 20
+        lambda: len(job_lines(sim)) >= 19  # G21 G90 M83 and 16 planner blocks
         and not worker.protocol.can_send("G1 X100 Y100 E0.5 F600"),
         60, "a full planner, a full command queue and a full window",
         step=worker.tick,
@@ -127,7 +132,7 @@ def test_emergency_stop_on_a_port_without_dtr_says_the_stop_waits_in_the_queue(
     printer = make_printer(port=str(sim.link), baud=115200)
     worker = PrinterWorker(printer)
     worker.start()
-    make_job(printer, SLOW_MOVES)
+    make_job(printer, QUICK_MOVES)
     try:
         _planner_full(sim, worker)
         row = emergency_stop(printer, origin="tester")
@@ -135,7 +140,8 @@ def test_emergency_stop_on_a_port_without_dtr_says_the_stop_waits_in_the_queue(
             lambda: QueuedCommand.objects.get(pk=row.pk).reply, 10, "the reply",
             step=worker.tick,
         )  # fmt: skip
-        wait_for(lambda: "M112" in sim.executed(), 30, "M112 to reach the firmware")
+        wait_for(lambda: "M112" in sim.executed(), 30, "M112 to reach the firmware",
+                 step=worker.tick)  # fmt: skip
         worker.log.flush()
     finally:
         worker.stop()
