@@ -121,8 +121,8 @@ def _normal(entry: str) -> str:
 
 
 def simulator_paths_outside(simulator: str, *, data_dir: Path) -> list[str]:
-    """The file options of simulator arguments (--record, --link, --control) that
-    would write outside *data_dir*; [] when all stay inside."""
+    """The file options of simulator arguments (--record, --link, --control,
+    --sd-dir) that would write outside *data_dir*; [] when all stay inside."""
     try:
         words = shlex.split(simulator)
     except ValueError as error:
@@ -131,7 +131,7 @@ def simulator_paths_outside(simulator: str, *, data_dir: Path) -> list[str]:
     outside = []
     for index, word in enumerate(words):
         name, _, value = word.partition("=")
-        if name not in ("--record", "--link", "--control"):
+        if name not in ("--record", "--link", "--control", "--sd-dir"):
             continue
         if not value and index + 1 < len(words):
             value = words[index + 1]
@@ -140,7 +140,7 @@ def simulator_paths_outside(simulator: str, *, data_dir: Path) -> list[str]:
             outside.append(f"{name} {value} (give an absolute path)")
             continue
         # The simulator replaces its --link, so only where the link sits matters;
-        # --record and --control are opened, so follow their symlinks.
+        # --record, --control and --sd-dir are opened, so follow their symlinks.
         lexical = Path(os.path.normpath(path))
         resolved = lexical if name == "--link" else path.resolve()
         if not resolved.is_relative_to(data) or resolved == data:

@@ -21,6 +21,8 @@ COMMANDS = (
     "stats",
     "click",
     "action <text>",
+    "sd",
+    "sd-stop",
 )
 
 
@@ -30,6 +32,8 @@ def run(sim: Simulator, line: str, now: float) -> str:
     name = name.lower()
     if name == "action":
         return _action(sim, line.split(None, 1)[1:], now)
+    if name in ("sd", "sd-stop"):
+        return _card(sim, stop=name == "sd-stop", args=args)
     if name in ("reset", "close", "reopen", "halt", "stats", "click") and args:
         raise ValueError(f"{name} takes no argument")
     if name == "reset":
@@ -59,6 +63,27 @@ def _click(sim: Simulator, now: float) -> str:
     if not click(now):
         raise ValueError("click: the printer is not waiting for the user")
     return "ok"
+
+
+def _card(sim: Simulator, *, stop: bool, args: list[str]) -> str:
+    """`sd`: the card as JSON; `sd-stop`: the printer's menu stops the card's print."""
+    sd = getattr(sim.firmware, "sd", None)
+    if args:
+        raise ValueError("sd and sd-stop take no argument")
+    if sd is None:
+        raise ValueError("this printer has no SD card (--sd-card or --sd-dir)")
+    if stop:
+        if not sd.stop_from_display():
+            raise ValueError("sd-stop: the card is not printing")
+        return "ok"
+    state = {
+        "files": {name: sd.files.size(name) for name in sd.files},
+        "selected": sd.selected,
+        "position": sd.position,
+        "printing": sd.printing,
+        "writing": sd.writing,
+    }
+    return "ok " + json.dumps(state)
 
 
 def _action(sim: Simulator, rest: list[str], now: float) -> str:

@@ -9,28 +9,92 @@ words (see `printers/protocol/marlin_sd.py`).
 
 from __future__ import annotations
 
+import re
+from collections.abc import Iterator, MutableMapping
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+    from pathlib import Path
 
     Handler = Callable[[str, float], None]
 
-__all__ = ["SdCard"]
+__all__ = ["CardFiles", "SdCard"]
+
+#: Names a directory-backed card lists: 8.3, upper case (what Marlin's M28 writes).
+_SHORT = re.compile(
+    r"^[A-Z0-9_~!#$%&'()@^`{}-]{1,8}(\.[A-Z0-9_~!#$%&'()@^`{}-]{1,3})?$"
+)
+
+
+class CardFiles(MutableMapping[str, bytes]):
+    """The card's files by 8.3 name: in memory, or the files of a directory (so a
+    test can put a file on the card before the printer starts and read what an
+    upload wrote)."""
+
+    def __init__(self, directory: Path | None = None) -> None:
+        self.directory = directory
+        self._memory: dict[str, bytes] = {}
+
+    def __getitem__(self, name: str) -> bytes:
+        if self.directory is None:
+            return self._memory[name]
+        path = self.directory / name
+        if not _SHORT.match(name) or not path.is_file():
+            raise KeyError(name)
+        return path.read_bytes()
+
+    def __setitem__(self, name: str, data: bytes) -> None:
+        if self.directory is None:
+            self._memory[name] = data
+        else:
+            (self.directory / name).write_bytes(data)
+
+    def __delitem__(self, name: str) -> None:
+        if self.directory is None:
+            del self._memory[name]
+            return
+        if name not in self:
+            raise KeyError(name)
+        (self.directory / name).unlink()
+
+    def __iter__(self) -> Iterator[str]:
+        if self.directory is None:
+            return iter(sorted(self._memory))
+        names = (p.name for p in self.directory.iterdir() if p.is_file())
+        return iter(sorted(n for n in names if _SHORT.match(n)))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+    def append(self, name: str, data: bytes) -> None:
+        """Add *data* at the end of *name* (M28 writing, line by line)."""
+        if self.directory is None:
+            self._memory[name] = self._memory.get(name, b"") + data
+        else:
+            with (self.directory / name).open("ab") as out:
+                out.write(data)
+
+    def size(self, name: str) -> int:
+        if self.directory is None:
+            return len(self._memory[name])
+        return (self.directory / name).stat().st_size
 
 
 class SdCard:
     """Files on the card, the selected file and where reading has got to."""
 
-    def __init__(self, say: Callable[..., None]) -> None:
+    def __init__(self, say: Callable[..., None], directory: Path | None = None) -> None:
         self.say = say
-        self.files: dict[str, bytes] = {}
+        self.files = CardFiles(directory)
         self.selected: str | None = None
         self.position = 0
         self.printing = False
         self.writing: str | None = None
         self.report_every = 0.0
         self._next_report = 0.0
+        #: The selected file as it was opened (M23 reads it once, like a file handle).
+        self._data = b""
 
     def handlers(self) -> dict[str, Handler]:
         return {
@@ -64,7 +128,7 @@ class SdCard:
         if text.split(maxsplit=1)[:1] == ["M29"]:
             self._m29("", 0.0)
             return True
-        self.files[self.writing] += text.encode("ascii", "replace") + b"\n"
+        self.files.append(self.writing, text.encode("ascii", "replace") + b"\n")
         return True
 
     # -- printing ----------------------------------------------------------------
@@ -76,7 +140,7 @@ class SdCard:
         """
         if not self.printing or self.selected is None:
             return None
-        data = self.files.get(self.selected, b"")
+        data = self._data
         while self.position < len(data):
             end = data.find(b"\n", self.position)
             end = len(data) if end < 0 else end + 1
@@ -88,6 +152,12 @@ class SdCard:
         self.printing = False
         self.say("Done printing file")
         return None
+
+    def next_report(self) -> float | None:
+        """When `tick` reports next (M27 S<n>), or None."""
+        if self.report_every <= 0 or self.selected is None:
+            return None
+        return self._next_report
 
     def tick(self, now: float) -> None:
         """The M27 S<n> auto-report, while a file is selected."""
@@ -103,7 +173,7 @@ class SdCard:
         self.say("Begin file list")
         for name in sorted(self.files):
             extra = f" {name.lower()}" if long_names else ""
-            self.say(f"{name} {len(self.files[name])}{extra}")
+            self.say(f"{name} {self.files.size(name)}{extra}")
         self.say("End file list")
 
     def _m21(self, args: str, now: float) -> None:
@@ -115,8 +185,9 @@ class SdCard:
             self.say(f"echo:open failed, File: {name}.")
             return
         self.selected, self.position, self.printing = name, 0, False
+        self._data = self.files[name]
         self.say(f"echo:Now fresh file: {name}")
-        self.say(f"File opened: {name} Size: {len(self.files[name])}")
+        self.say(f"File opened: {name} Size: {self.files.size(name)}")
         self.say("File selected")
 
     def _m24(self, args: str, now: float) -> None:
@@ -161,10 +232,19 @@ class SdCard:
 
     def _m524(self, args: str, now: float) -> None:
         self.printing, self.selected, self.position = False, None, 0
+        self._data = b""
+
+    def stop_from_display(self) -> bool:
+        """The printer's own menu stops the print (the host is not told); False if
+        nothing was printing."""
+        if self.selected is None:
+            return False
+        self._m524("", 0.0)
+        return True
 
     def _report(self) -> None:
         if self.printing and self.selected is not None:
-            size = len(self.files[self.selected])
+            size = len(self._data)
             self.say(f"SD printing byte {self.position}/{size}")
         else:
             self.say("Not SD printing")

@@ -106,8 +106,9 @@ _CAPABILITIES = (
     ("EMERGENCY_PARSER", None),
     ("HOST_ACTION_COMMANDS", 1),
     ("PROMPT_SUPPORT", 1),
-    ("SDCARD", 0),
-    ("AUTOREPORT_SD_STATUS", 0),
+    ("SDCARD", "sd"),
+    ("AUTOREPORT_SD_STATUS", "sd"),
+    ("LONG_FILENAME", "sd"),
     ("THERMAL_PROTECTION", 1),
     ("MOTION_MODES", 0),
     ("ARCS", 1),
@@ -117,7 +118,7 @@ _CAPABILITIES = (
 )
 
 
-def firmware_info(*, emergency_parser: bool) -> str:
+def firmware_info(*, emergency_parser: bool, sd_card: bool = False) -> str:
     """M115's reply (before its ok), lines joined with newlines."""
     lines = [
         f"FIRMWARE_NAME:Marlin {VERSION} (printhost simulator) "
@@ -126,5 +127,7 @@ def firmware_info(*, emergency_parser: bool) -> str:
     ]
     for name, value in _CAPABILITIES:
         on = int(emergency_parser) if value is None else value
+        if value == "sd":
+            on = int(sd_card)
         lines.append(f"Cap:{name}:{on}")
     return "\n".join(lines)

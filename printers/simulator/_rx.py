@@ -37,11 +37,18 @@ class LineReader:
         self._flushed = False
         self.dropped = 0
         self.received = 0
+        #: While on_line runs: another whole line follows in the chunk being read.
+        self._more = False
 
     @property
     def free(self) -> int:
         """Ring bytes free (GRBL reports it as the second `Bf:` number)."""
         return self.capacity - len(self._ring)
+
+    @property
+    def waiting(self) -> bool:
+        """A whole line waits in the ring (Marlin reads serial before the SD card)."""
+        return self._more or b"\n" in self._ring
 
     def feed(self, data: bytes, now: float) -> None:
         """Bytes that arrived at *now*."""
@@ -97,7 +104,11 @@ class LineReader:
                 line = data[start:end]
             start = end + 1
             self._flushed = False
-            self._on_line(line, now)
+            self._more = data.find(b"\n", start) >= 0
+            try:
+                self._on_line(line, now)
+            finally:
+                self._more = False
             if self._flushed:
                 return b""  # the rest had arrived too, so the flush took it
             if not self._can_read():

@@ -27,7 +27,8 @@ Simulate a Marlin or GRBL controller on a pty (and/or TCP), paced at the
 serial baud rate in both directions. Prints one JSON line when ready:
 {"ready": true, "pty": ..., "tcp": ..., "pid": ...}.
 Control socket commands: reset, close, reopen, busy <seconds>,
-corrupt <share>, drop-ok <every_n>, halt, stats.
+corrupt <share>, drop-ok <every_n>, halt, stats, click, action <text>,
+sd (the card as JSON), sd-stop (the display stops the card's print).
 """
 
 
@@ -82,6 +83,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="Marlin: print each received line back (echo:<line>, or as is)",
     )  # fmt: skip
     machine.add_argument(
+        "--sd-card", action="store_true",
+        help="Marlin: SDSUPPORT with an empty card in memory",
+    )  # fmt: skip
+    machine.add_argument(
+        "--sd-dir", type=Path,
+        help="Marlin: SDSUPPORT; the card is this folder (8.3 upper-case names)",
+    )  # fmt: skip
+    machine.add_argument(
         "--ok-before-resend", action="store_true",
         help="Marlin: send a rejected line's ok before its Resend",
     )  # fmt: skip
@@ -122,7 +131,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         faults = Faults(_fault_config(parser, args))
     except SystemExit as stop:
         return stop.code if isinstance(stop.code, int) else 2
-    outside = _record_outside_data_dir(args.record)
+    outside = _outside_data_dir("--record", args.record) or _outside_data_dir(
+        "--sd-dir", args.sd_dir
+    )
     if outside:
         return _fail(parser, outside)
     try:
@@ -143,17 +154,18 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     return 0
 
 
-def _record_outside_data_dir(record: Path | None) -> str:
+def _outside_data_dir(option: str, path: Path | None) -> str:
     """Under printhost (PRINTHOST_DATA_DIR set, as runhost's children have it) the
-    record file must stay in the data directory; "" when it does or is not asked."""
+    record file and the card's folder must stay in the data directory; "" when they
+    do or are not asked for."""
     data_dir = os.environ.get("PRINTHOST_DATA_DIR", "")
-    if record is None or not data_dir:
+    if path is None or not data_dir:
         return ""
     root = Path(data_dir).resolve()
-    target = record.resolve()
+    target = path.resolve()
     if target.is_relative_to(root) and target != root:
         return ""
-    return f"--record {record}: must be inside the data directory {root}"
+    return f"{option} {path}: must be inside the data directory {root}"
 
 
 def _fail(parser: argparse.ArgumentParser, message: str) -> int:
@@ -172,6 +184,10 @@ def _runner_config(
         parser.error("--variant is for grbl only")
     if min(args.rx_buffer or 1, args.bufsize, args.planner) < 1:
         parser.error("--rx-buffer, --bufsize and --planner must be at least 1")
+    if args.sd_dir is not None and not args.sd_dir.is_dir():
+        parser.error(f"--sd-dir {args.sd_dir}: no such folder")
+    if (args.sd_dir or args.sd_card) and args.firmware != "marlin":
+        parser.error("--sd-card and --sd-dir are for marlin only")
     if args.link is not None and not args.link.parent.is_dir():
         parser.error(f"--link {args.link}: folder {args.link.parent} does not exist")
     return RunnerConfig(
@@ -242,6 +258,8 @@ def _firmware(
         dialect=args.dialect,
         ok_before_resend=args.ok_before_resend,
         echo_lines=args.echo_lines or "",
+        sd_card=args.sd_card,
+        sd_dir=args.sd_dir,
         faults=faults,
         on_execute=on_execute,
         now=now,

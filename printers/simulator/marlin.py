@@ -12,19 +12,20 @@ Rules of this module:
 
 from __future__ import annotations
 
-import re
 from collections import deque
 from typing import TYPE_CHECKING
 
-from printers.protocol.checksum import parse_framed_line
 from printers.simulator import _marlin_text as text
 from printers.simulator._marlin_dialect import DIALECTS
+from printers.simulator._marlin_lines import CODE, Command, LineInput
 from printers.simulator._marlin_machine import MarlinMachine, words
 from printers.simulator._marlin_pause import FilamentChange
+from printers.simulator._marlin_sd import SdCard
 from printers.simulator._rx import LineReader
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+    from pathlib import Path
 
     from printers.simulator._marlin_machine import Handler, Job, Wait
     from printers.simulator._motion import Planner
@@ -32,24 +33,8 @@ if TYPE_CHECKING:
 
 __all__ = ["MarlinFirmware"]
 
-#: MAX_CMD_SIZE - 1: the rest of a longer line is skipped.
-MAX_LINE = 95
-#: The line the emergency parser reacts to (it sees bytes before the ring does).
-_EMERGENCY = re.compile(
-    rb"(?m)^[ \t]*(?:N-?\d+[ \t]*)?M(108|112|410|876)(?![0-9])([^\n]*)\n"
-)
-_CODE = re.compile(r"([GMTgmt])\s*(\d+)")
 
-
-class _Command:
-    __slots__ = ("number", "text")
-
-    def __init__(self, text: str, number: int | None) -> None:
-        self.text = text
-        self.number = number
-
-
-class MarlinFirmware:
+class MarlinFirmware(LineInput):
     """A Marlin printer: 4-slot command queue, 16-block planner, hotend and bed.
 
     `executed_count` counts commands taken from the queue; *on_execute* gets each
@@ -72,6 +57,8 @@ class MarlinFirmware:
         dialect: str = "marlin",
         ok_before_resend: bool = False,
         echo_lines: str = "",
+        sd_card: bool = False,
+        sd_dir: Path | None = None,
         faults: Faults | None = None,
         on_execute: Callable[[str], None] | None = None,
         now: float = 0.0,
@@ -97,6 +84,8 @@ class MarlinFirmware:
         self.executed_count = 0
         self._out: list[str] = []
         self._reader = LineReader(rx_buffer, self._on_line, self._has_slot)
+        #: SDSUPPORT: a card (in memory, or the files of *sd_dir*); it outlives resets.
+        self.sd = SdCard(self._print, sd_dir) if sd_card or sd_dir else None
         self.reset(now)
 
     @property
@@ -148,6 +137,10 @@ class MarlinFirmware:
             times.append(self.planner.next_deadline())
         if self._queue and self._stall_until > self._clock:
             times.append(self._stall_until)
+        if self.sd is not None:
+            times.append(self.sd.next_report())
+            if self.sd.printing and len(self._queue) < self.bufsize:
+                times.append(self._clock)  # the card can feed a free slot
         pending = [t for t in times if t is not None]
         return min(pending) if pending else None
 
@@ -162,7 +155,7 @@ class MarlinFirmware:
         self._clock = now
         self.killed = False
         self._reader.flush()
-        self._queue: deque[_Command] = deque()
+        self._queue: deque[Command] = deque()
         self._job: Job | None = None
         self._wait: Wait | None = None
         self._poked = False
@@ -180,6 +173,8 @@ class MarlinFirmware:
             time_scale=self.time_scale,
             now=now,
         )
+        if self.sd is not None:
+            self.sd.reset()
         self._handlers = self._handler_table()
         if banner == "noise":
             self._out.append(text.BOOT_NOISE)
@@ -210,23 +205,6 @@ class MarlinFirmware:
     def _has_slot(self) -> bool:
         return len(self._queue) < self.bufsize and not self.killed
 
-    def _scan_emergency(self, data: bytes, now: float) -> None:
-        """EMERGENCY_PARSER: act on M108/M112/M410 as their line end arrives."""
-        chunk = self._ep_tail + data.replace(b"\r", b"\n")
-        cut = chunk.rfind(b"\n") + 1
-        self._ep_tail = chunk[cut:][-64:]
-        if b"M" not in chunk[:cut]:
-            return
-        for match in _EMERGENCY.finditer(chunk, 0, cut):
-            code = match[1].decode()
-            if self.pause.on_emergency(code, match[2].decode("latin-1")):
-                self._poked = True  # M108 or M876 S0 continues a parked M600
-            if code == "876":
-                continue
-            self._emergency(code, now)
-            if self.killed:
-                return
-
     def click(self, now: float) -> bool:
         """The LCD's button: continue a parked M600; False if nothing waits."""
         if not self.pause.continue_("click"):
@@ -239,91 +217,11 @@ class MarlinFirmware:
         """Print `//action:<text>` (as a LCD menu or a macro would make it)."""
         self._print(f"//action:{text}")
 
-    def _emergency(self, code: str, now: float) -> None:
-        if code == "112":
-            # Recorded here: a kill() stops everything, so it never reaches the queue.
-            if self.on_execute is not None:
-                self.on_execute("M112")
-            self.halt(now)
-        elif code == "108":
-            self.machine.cancel_wait = True
-            self._poked = True
-        else:
-            self.machine.quickstop(now)
-            self._poked = True
-
-    def _on_line(self, raw: bytes, now: float) -> None:
-        if self.faults is not None:
-            raw = self.faults.corrupt_line(raw)
-        line = raw.decode("latin-1")
-        if ";" in line:
-            line = line[: line.index(";")]
-        line = line[:MAX_LINE].strip()
-        if not line:
-            return
-        if self.echo_lines:
-            self._print(f"echo:{line}" if self.echo_lines == "echo" else line)
-        number = None
-        if line[0] != "N" and "*" in line and self.dialect.no_line_number:
-            self._line_error(self.dialect.no_line_number, None)
-            return
-        if line[0] == "N":
-            checked = self._check_line(line)
-            if checked is None:
-                return
-            number, line = checked
-        if not self.emergency_parser and line[:1] in "Mm":
-            self._early_emergency(line, now)
-            if self.killed:
-                return
-        self._queue.append(_Command(line, number))
-        self._execute(now)
-
-    def _check_line(self, line: str) -> tuple[int, str] | None:
-        """Marlin's order: line number, then checksum. Returns (number, command)."""
-        number, command, good = parse_framed_line(line)
-        dialect = self.dialect
-        expected = number
-        if "M110" in line:
-            second = re.search(r"N(-?\d+)", line[4:])
-            expected = int(second[1]) if second else number
-        elif dialect.sequence and (number or 0) != self._last_n + 1:
-            if (
-                dialect.skip_duplicates
-                and number is not None
-                and number <= self._last_n
-            ):
-                self._print(f"skip {number}", "ok")
-            else:
-                self._line_error(dialect.line_number, number)
-            return None
-        if not good:
-            star = "*" in line
-            self._line_error(dialect.checksum if star else dialect.no_checksum, number)
-            return None
-        self._last_n = expected if expected is not None else 0
-        return (number if number is not None else 0), command
-
-    def _line_error(self, message: str | None, got: int | None) -> None:
-        """gcode_line_error: report, flush the RX ring, ask for the line again, ok.
-
-        A dialect without a message (RepRapFirmware) drops the line silently.
-        """
-        if message is None:
-            return
-        self._reader.flush()
-        self._print(*self.dialect.rejection(message, self._last_n, got, self._ok_order))
-
-    def _early_emergency(self, line: str, now: float) -> None:
-        """Without the parser, queue.cpp acts on these when the line is read."""
-        code = _CODE.match(line)
-        if code is not None and code[2] in ("108", "112", "410"):
-            self._emergency(code[2], now)
-
     # -- executing commands ----------------------------------------------------------
 
     def _execute(self, now: float) -> None:
         """Run queued commands in order until one blocks or the queue is empty."""
+        self._feed_from_card()
         while self._queue and not self.killed:
             if self._job is not None:
                 if not self._resume(now):
@@ -340,7 +238,19 @@ class MarlinFirmware:
                 if job is not None and not self._start(job, now):
                     break
             self._finish(now)
+            self._feed_from_card()
         self._update_busy(now)
+
+    def _feed_from_card(self) -> None:
+        """get_sdcard_commands: while printing, the card's lines fill free slots."""
+        sd = self.sd
+        if sd is None or self._reader.waiting:
+            return  # serial lines first: step() drains them into the free slot
+        while sd.printing and len(self._queue) < self.bufsize:
+            line = sd.next_command()
+            if line is None:
+                return
+            self._queue.append(Command(line, None, from_card=True))
 
     def _start(self, job: Job, now: float) -> bool:
         """Run a blocking handler up to its first wait; True if it finished at once."""
@@ -368,11 +278,14 @@ class MarlinFirmware:
                 return True
         return True
 
-    def _dispatch(self, command: _Command, now: float) -> Job | None:
+    def _dispatch(self, command: Command, now: float) -> Job | None:
+        sd = self.sd
+        if sd is not None and not command.from_card and sd.capture(command.text):
+            return None  # M28 is writing: the line went into the file, never run
         self.executed_count += 1
         if self.on_execute is not None:
             self.on_execute(command.text)
-        code = _CODE.match(command.text)
+        code = CODE.match(command.text)
         handler = None
         if code is not None:
             handler = self._handlers.get(code[1].upper() + str(int(code[2])))
@@ -385,7 +298,9 @@ class MarlinFirmware:
         """ok_to_send(), while the command still counts in the queue; then free its slot."""
         command = self._queue[0]
         reply, self.machine.custom_ok = self.machine.custom_ok, None
-        if self.faults is not None and self.faults.drop_ok():
+        if command.from_card:
+            reply = ""  # a command from the card came from no port: no ok
+        elif self.faults is not None and self.faults.drop_ok():
             reply = None
         elif reply is None:
             reply = "ok"
@@ -395,7 +310,7 @@ class MarlinFirmware:
                 reply = f"ok{n} P{self.planner.free} B{free}"
             elif self.dialect.numbered_ok and command.number is not None:
                 reply = f"ok {command.number}"
-        if reply is not None:
+        if reply:
             self._out.append(reply + "\n")
         self._queue.popleft()
         self._keepalive_at = None  # idle() between commands restarts its timer
@@ -420,6 +335,8 @@ class MarlinFirmware:
         if at is not None and now >= at:
             self._print(" " + self.machine.temperatures(now))
             self._report_at = max(at + self._report_interval, now)
+        if self.sd is not None:
+            self.sd.tick(now)
 
     def _print(self, *lines: str) -> None:
         self._out.extend(line + "\n" for line in lines)
@@ -436,6 +353,8 @@ class MarlinFirmware:
             M600=self.pause.m600,
             M876=self.pause.m876,
         )
+        if self.sd is not None:
+            table.update(self.sd.handlers())
         return table
 
     def _m110(self, args: str, now: float) -> None:
@@ -452,7 +371,11 @@ class MarlinFirmware:
         if self.dialect.name == "reprapfirmware":
             self._print(text.RRF_INFO)
             return
-        self._print(text.firmware_info(emergency_parser=self.emergency_parser))
+        self._print(
+            text.firmware_info(
+                emergency_parser=self.emergency_parser, sd_card=self.sd is not None
+            )
+        )
 
     def _m155(self, args: str, now: float) -> None:
         interval = words(args).get("S", 0.0)

@@ -89,12 +89,14 @@ def test_simulator_files_must_stay_in_the_data_dir(tmp_path):
     inside = f"marlin --link {tmp_path}/sim/a --record {tmp_path}/a.record"
     assert simulator_paths_outside(inside, data_dir=tmp_path) == []
     outside = simulator_paths_outside(
-        f"marlin --link {tmp_path}/a --record /tmp/x.record --control=../c",
+        f"marlin --link {tmp_path}/a --record /tmp/x.record --control=../c "
+        "--sd-dir /etc",
         data_dir=tmp_path,
     )
     assert outside == [
         "--record /tmp/x.record",
         "--control ../c (give an absolute path)",
+        "--sd-dir /etc",
     ]
 
 
@@ -110,6 +112,19 @@ def test_the_simulator_refuses_a_record_file_outside_the_data_dir(tmp_path):
     assert done.returncode == 2
     assert "--record" in done.stderr and "inside the data directory" in done.stderr
     assert not (tmp_path / "outside.record").exists()
+
+
+def test_the_simulator_refuses_a_card_folder_outside_the_data_dir(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    done = subprocess.run(
+        [sys.executable, "-m", "printers.simulator", "marlin", "--link",
+         str(data / "p.tty"), "--sd-dir", str(tmp_path)],
+        cwd=ROOT, env={**os.environ, "PRINTHOST_DATA_DIR": str(data)},
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert "--sd-dir" in done.stderr and "inside the data directory" in done.stderr
 
 
 # -- the model, the admin, the config API ------------------------------------------
