@@ -155,13 +155,11 @@ class SdCard:
 
     def next_report(self) -> float | None:
         """When `tick` reports next (M27 S<n>), or None."""
-        if self.report_every <= 0 or self.selected is None:
-            return None
-        return self._next_report
+        return self._next_report if self.report_every > 0 else None
 
     def tick(self, now: float) -> None:
-        """The M27 S<n> auto-report, while a file is selected."""
-        if self.report_every <= 0 or self.selected is None or now < self._next_report:
+        """The M27 S<n> auto-report (Marlin reports whether a file prints or not)."""
+        if self.report_every <= 0 or now < self._next_report:
             return
         self._next_report = now + self.report_every
         self._report()
