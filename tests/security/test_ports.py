@@ -6,10 +6,10 @@ API) and the worker's transport use it. Port, baud and simulator are a superuser
 
 from __future__ import annotations
 
+import io
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 from django.contrib.admin.sites import site
@@ -253,11 +253,23 @@ def test_worker_never_opens_a_bad_port_already_in_the_database(
     assert "cannot open port" in texts and "spy:// ports are not allowed" in texts
 
 
-def test_loopback_simulators_of_setup_demo_stay_allowed(tmp_path: Path) -> None:
-    link = tmp_path / "sim" / "marlin-sim"
-    check_port(str(link), data_dir=tmp_path)
-    demo = f"marlin --link {link} --baud 250000 --latency-ms 1"
-    assert simulator_paths_outside(demo, data_dir=tmp_path) == []
+@pytestmark_db
+def test_the_demo_printers_pass_the_port_and_simulator_checks(settings, tmp_path):
+    from django.core.management import call_command
+
+    from printers.models import Printer
+
+    settings.DATA_DIR = tmp_path
+    settings.JOB_STORAGE_DIR = tmp_path / "jobs"
+    call_command("setup_demo", stdout=io.StringIO())
+    printers = list(Printer.objects.all())
+    assert {p.slug for p in printers} == {"marlin-sim", "grbl-sim"}
+    for printer in printers:
+        printer.full_clean()  # the port and the simulator's paths are allowed
+        check_port(printer.port, data_dir=tmp_path)
+    marlin = Printer.objects.get(slug="marlin-sim")
+    assert "--sd-dir" in marlin.simulator
+    assert (tmp_path / "sim" / "marlin-sim-sd" / "SQUARE.GCO").is_file()
 
 
 @pytestmark_db

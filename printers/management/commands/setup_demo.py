@@ -1,4 +1,7 @@
-"""`manage.py setup_demo`: a demo admin and two simulated printers, if none exist."""
+"""`manage.py setup_demo`: a demo admin and two simulated printers, if none exist.
+
+The Marlin one has an SD card (a folder in the data directory) holding a demo file.
+"""
 
 from __future__ import annotations
 
@@ -42,13 +45,19 @@ class Command(BaseCommand):
             ("grbl-sim", "GRBL (simulated)", "grbl", 115200),
         ):
             link = links / slug
+            simulator = f"{firmware} --link {link} --baud {baud} --latency-ms 1"
+            if firmware == "marlin":  # an SD card with a file on it
+                card = links / f"{slug}-sd"
+                card.mkdir(exist_ok=True)
+                (card / "SQUARE.GCO").write_text(demo_gcode())
+                simulator += f" --sd-dir {card}"
             printer = Printer.objects.create(
                 name=name,
                 slug=slug,
                 firmware=firmware,
                 port=str(link),
                 baud=baud,
-                simulator=f"{firmware} --link {link} --baud {baud} --latency-ms 1",
+                simulator=simulator,
                 pause_script="G91\nG1 Z5\nG90" if firmware == "marlin" else "",
             )
             (storage_dir(printer) / "demo-square.gcode").write_text(demo_gcode())
