@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from django.contrib.auth.models import AbstractBaseUser
 
 __all__ = [
+    "BadCardName",
     "SdRefused",
     "card_files",
     "card_name",
@@ -39,11 +40,15 @@ class SdRefused(ValueError):
     """The request cannot be done on this printer's card; the message says why."""
 
 
+class BadCardName(SdRefused):
+    """A name the card cannot hold or a command line cannot carry."""
+
+
 def card_name(name: str) -> str:
     """*name* as the card knows it (upper case), or SdRefused."""
     upper = name.strip().upper()
     if not _CARD_NAME.match(upper) or ".." in upper.split("/"):
-        raise SdRefused(
+        raise BadCardName(
             f"{name!r} is not a name on the printer's SD card (letters, digits and "
             "_~!#$%&'()@^`{}.-/ only, no blanks, no '..')"
         )
@@ -118,7 +123,7 @@ def queue_sd_upload(
     if sd_name:
         wanted = card_name(sd_name)
         if short_name(wanted) != wanted:
-            raise SdRefused(
+            raise BadCardName(
                 f"{sd_name!r} is not an 8.3 name (up to 8 characters, a dot and up "
                 "to 3): the printer's card takes only those"
             )

@@ -47,6 +47,7 @@ ROUTER_MODULES: list[str] = [
     "appkeys",
     "keys",
     "config",
+    "sdcard",
     "printer",
     "host",
     "repetier",

@@ -41,7 +41,9 @@ class Endpoint:
     #: "p": acts on printer p (a key bound to q is refused); "any": a role anywhere
     #: will do; "unbound": a role anywhere, but a key bound to a printer is refused.
     scope: str = "p"
-    body: str = ""  # "json:{...}", "file" (multipart G-code), "raw"
+    #: "json:{...}", "jsonf:{{...{stored}}}" (formatted like the path), "file"
+    #: (multipart G-code), "raw".
+    body: str = ""
     #: The printer's state the call needs: "", "printing", "paused", "waitstart",
     #: "prompt" (paused in M600, the firmware's prompt shown).
     state: str = ""
@@ -124,6 +126,11 @@ ENDPOINTS = [
     ep("POST", "/printer/emergency/p", OPERATOR),
     ep("POST", "/printer/prompt/p", OPERATOR, body='json:{"choice": 0}', state="prompt"),
     ep("POST", "/printer/queue/p", OPERATOR, body='json:{"order": []}'),
+    ep("GET", "/printer/sd/p", VIEWER),
+    ep("POST", "/printer/sd/p/refresh", OPERATOR),
+    ep("POST", "/printer/sd/p/print", OPERATOR, body='json:{"name": "CUBE.GCO"}'),
+    ep("POST", "/printer/sd/p/upload", OPERATOR, body='jsonf:{{"job": {stored}}}'),
+    ep("POST", "/printer/sd/p/delete", OPERATOR, body='json:{"name": "CUBE.GCO"}'),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
     ep("GET", "/printer/api/p?a=listModelGroups", VIEWER),
     ep("POST", "/printer/api/p?a=listModelGroups", VIEWER),
@@ -277,6 +284,9 @@ def call(world: World, caller: str, endpoint: Endpoint) -> int:
         kwargs: dict = {"headers": headers}
         if endpoint.body.startswith("json:"):
             kwargs |= {"data": endpoint.body[5:], "content_type": "application/json"}
+        elif endpoint.body.startswith("jsonf:"):
+            data = endpoint.body[6:].format(**names)
+            kwargs |= {"data": data, "content_type": "application/json"}
         elif endpoint.body == "file":
             kwargs["data"] = {
                 part: SimpleUploadedFile("cube.gcode", b"G28\nG1 X1\n")
