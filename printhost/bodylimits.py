@@ -37,7 +37,7 @@ UPLOAD_ROUTES: tuple[tuple[str, re.Pattern[str]], ...] = (
     # Resumable uploads: each PATCH appends its body.
     ("PATCH", re.compile(r"/printer/upload/[^/]+/[^/]+/?")),
     # OctoPrint (PrusaSlicer, OrcaSlicer, Cura's plugin).
-    ("POST", re.compile(r"/api/files/local/?")),
+    ("POST", re.compile(r"/api/files/(?:local|sdcard)/?")),
     # Moonraker (PrusaSlicer, OrcaSlicer).
     ("POST", re.compile(r"/server/files/upload/?")),
 )

@@ -44,6 +44,7 @@ ROUTER_MODULES: list[str] = [
     "moonraker",
     "octoprint",
     "octoprint_jobs",
+    "octoprint_sd",
     "appkeys",
     "keys",
     "config",

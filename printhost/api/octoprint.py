@@ -283,7 +283,7 @@ def state_and_flags(printer: Printer) -> dict[str, Any]:
             "cancelling": False,
             "resuming": False,
             "finishing": False,
-            "sdReady": False,
+            "sdReady": bool((printer.sd_card or {}).get("present")),
             "error": error,
             "ready": state == Printer.State.IDLE,
             "closedOrError": not operational,
@@ -301,7 +301,7 @@ def octoprint_printer(request: HttpRequest, slug: str | None = None) -> JsonResp
         {
             "temperature": _temperatures(printer),
             "state": state_and_flags(printer),
-            "sd": {"ready": False},
+            "sd": {"ready": bool((printer.sd_card or {}).get("present"))},
         }
     )
 

@@ -136,3 +136,53 @@ def test_a_grbl_machine_has_no_card(keys, make_printer) -> None:
 
 def test_an_unknown_printer_is_not_found(keys) -> None:
     assert call("get", "/printer/sd/nope", keys("viewer"))[0] == 404
+
+
+# -- OctoPrint's SD card endpoints ---------------------------------------------------
+
+
+def test_octoprint_lists_the_card_and_reports_it_ready(keys, listed) -> None:
+    status, body = call("get", "/p/mk3/api/files/sdcard", keys("viewer"))
+    assert status == 200, body
+    [entry] = body["files"]
+    assert entry["origin"] == "sdcard"
+    assert (entry["name"], entry["display"], entry["size"]) == (
+        "CUBE.GCO", "cube.gcode", 1234,
+    )  # fmt: skip
+    assert call("get", "/p/mk3/api/printer/sd", keys("viewer"))[1] == {"ready": True}
+
+
+def test_octoprint_select_and_print_from_the_card_queues_the_job(keys, listed) -> None:
+    status, _ = post(
+        "/p/mk3/api/files/sdcard/CUBE.GCO", keys(), {"command": "select", "print": True}
+    )
+    assert status == 204
+    job = Job.objects.get()
+    assert (job.kind, job.sd_name) == ("sd_print", "CUBE.GCO")
+    status, _ = post("/p/mk3/api/files/sdcard/CUBE.GCO", keys(), {"command": "select"})
+    assert status == 204
+    assert Job.objects.count() == 1  # a bare select queues nothing
+
+
+def test_octoprint_upload_to_the_card_stores_and_queues_the_copy(keys, listed) -> None:
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    status, body = call(
+        "post", "/p/mk3/api/files/sdcard", keys(),
+        data={"file": SimpleUploadedFile("part.gcode", b"G28\nG1 X1\n"),
+              "print": "true"},
+    )  # fmt: skip
+    assert status == 201, body
+    assert body["files"]["sdcard"]["name"] == "PART.GCO"
+    copy = Job.objects.get(kind="sd_upload")
+    assert copy.print_after and copy.sd_name == "PART.GCO"
+    assert Job.objects.get(kind="print").state == "stored"
+
+
+def test_octoprint_card_refresh_queues_a_listing_and_release_is_refused(
+    keys, listed
+) -> None:
+    assert post("/p/mk3/api/printer/sd", keys(), {"command": "refresh"})[0] == 204
+    assert QueuedCommand.objects.get().text == "sd_list"
+    status, body = post("/p/mk3/api/printer/sd", keys(), {"command": "release"})
+    assert status == 409, body

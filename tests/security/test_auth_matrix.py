@@ -81,6 +81,12 @@ ENDPOINTS = [
     ep("POST", "/p/p/api/files/local/{file}", OPERATOR, body='json:{"command": "select"}'),
     ep("GET", "/p/p/api/job", VIEWER),
     ep("POST", "/p/p/api/job", OPERATOR, body='json:{"command": "cancel"}', state="printing"),
+    ep("GET", "/p/p/api/files/sdcard", VIEWER),
+    ep("POST", "/p/p/api/files/sdcard", OPERATOR, body="file"),
+    ep("POST", "/p/p/api/files/sdcard/CUBE.GCO", OPERATOR,
+       body='json:{"command": "select", "print": true}'),
+    ep("GET", "/p/p/api/printer/sd", VIEWER),
+    ep("POST", "/p/p/api/printer/sd", OPERATOR, body='json:{"command": "refresh"}'),
     # Moonraker dialect.
     ep("GET", "/p/p/server/info", VIEWER),
     ep("POST", "/p/p/server/files/upload", OPERATOR, body="file"),
