@@ -23,6 +23,8 @@ class JobAdmin(admin.ModelAdmin):
         "id",
         "name",
         "printer",
+        "kind",
+        "sd_name",
         "state",
         "progress_percent",
         "lines_acked",
@@ -30,10 +32,12 @@ class JobAdmin(admin.ModelAdmin):
         "created_at",
         "finished_at",
     ]
-    list_filter = ["state", "printer", "created_at"]
-    search_fields = ["name", "sha256", "origin", "uploaded_by__username"]
+    list_filter = ["state", "kind", "printer", "created_at"]
+    search_fields = ["name", "sd_name", "sha256", "origin", "uploaded_by__username"]
     date_hierarchy = "created_at"
     readonly_fields = [
+        "kind",
+        "sd_name",
         "file",
         "size_bytes",
         "line_count",

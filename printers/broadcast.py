@@ -52,7 +52,13 @@ PAUSE_AFTER_FAILURE = 5.0
 #: A failing layer is logged at most this often (s).
 LOG_EVERY = 60.0
 #: Printer fields sent as `state` (temperatures have their own message).
-STATE_FIELDS = ("state", "state_message", "firmware_name", "machine_status")
+STATE_FIELDS = (
+    "state",
+    "state_message",
+    "firmware_name",
+    "machine_status",
+    "sd_card",
+)
 
 
 def layer_crosses_processes() -> bool:
@@ -115,7 +121,7 @@ class LivePublisher:
                 "state": known.get("state", ""),
                 "message": known.get("state_message", ""),
             }
-            for name in ("firmware_name", "machine_status"):
+            for name in ("firmware_name", "machine_status", "sd_card"):
                 if name in known:
                     event[name] = known[name]
             self._send(printer_id, event)

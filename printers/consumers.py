@@ -216,6 +216,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
                 "message": snap["message"],
                 "firmware_name": snap["firmware_name"],
                 "machine_status": snap["machine_status"],
+                "sd_card": snap["sd_card"],
                 "temperatures": snap["temperatures"],
                 "job": snap["job"],
             }

@@ -116,6 +116,7 @@ def state_of(printer: Printer) -> dict[str, Any]:
         "message": printer.state_message,
         "firmware_name": printer.firmware_name,
         "machine_status": printer.machine_status,
+        "sd_card": printer.sd_card,
     }
 
 

@@ -2,6 +2,7 @@
 import { api, clearError, csrfToken, errorOf, liveFeed, showError, showJob, showState, tempsText } from "./api.js";
 import { TempChart } from "./chart.js";
 import { answerPrompt, showPrompt } from "./prompt.js";
+import { sdCardPanel } from "./sdcard.js";
 
 const root = document.getElementById("printer");
 const slug = root.dataset.printer;
@@ -131,6 +132,13 @@ function renderQueue() {
     state.dataset.test = "queue-job-state";
     state.textContent = job.state === "printing" ? `printing ${job.progress.toFixed(1)} %` : job.state;
     li.append(link, state);
+    if (job.kind && job.kind !== "print") {
+      const kind = document.createElement("span");
+      kind.className = "badge";
+      kind.dataset.test = "queue-job-kind";
+      kind.textContent = job.kind === "sd_print" ? "from SD card" : `copy to SD card as ${job.sd_name}`;
+      li.append(kind);
+    }
     if (operator) {
       const actions = document.createElement("span");
       actions.className = "actions";
@@ -142,6 +150,8 @@ function renderQueue() {
       }
       if (job.state === "stored") actions.append(button("job-start", "Start", "primary"));
       if (FINISHED.includes(job.state)) actions.append(button("job-reprint", "Reprint"));
+      const copyable = job.kind === "print" && (job.state === "stored" || FINISHED.includes(job.state));
+      if (!grbl && copyable) actions.append(button("job-sd-copy", "Copy to SD"));
       if (job.state !== "printing" && job.state !== "paused") actions.append(button("job-delete", "Delete", "danger"));
       li.append(actions);
     }
@@ -196,6 +206,10 @@ list.addEventListener("click", async (event) => {
       [ids[at], ids[to]] = [ids[to], ids[at]];
       await reorder(ids);
     }
+  } else if (test === "job-sd-copy") {
+    const print = confirm("Print it from the SD card once it is copied? (Cancel: only copy it)");
+    await api("POST", `/printer/sd/${base}/upload`, { job: id, print });
+    await reloadQueue();
   } else {
     const action = { "job-start": "start", "job-reprint": "reprint", "job-delete": "delete" }[test];
     if (action === "delete" && !confirm("Delete this job and its file?")) {
@@ -358,7 +372,10 @@ async function loadHistory() {
   chart.draw();
 }
 
+const showCard = sdCardPanel($("sd-card"), base, operator, reloadQueue);
+
 function onMessage(message) {
+  if ("sd_card" in message) showCard(message.sd_card);
   switch (message.type) {
     case "hello":
       setState(message.state, message.message);
