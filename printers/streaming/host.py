@@ -236,6 +236,11 @@ class StreamHost:
         return QueueState.PROCESSING
 
     @property
+    def requested(self) -> str:
+        """A pause, resume or abort asked for and not applied yet ("" if none)."""
+        return self._requested
+
+    @property
     def printing(self) -> bool:
         """A file stream is running (Marlin numbers its lines "only while printing")."""
         return self.queue_state is QueueState.PROCESSING

@@ -240,15 +240,18 @@ class SdCardWatch:
                 self.worker.note(f"the printer could not delete {name} from its card")
 
     def _stopped_by_printer(self, stream: Stream) -> bool:
-        """`Not SD printing` while we believe it prints: lines acked, not paused,
-        no control command (a resume's M24) on its way, the file not done."""
+        """`Not SD printing` while we believe it prints: lines acked, not paused and
+        no pause asked (the display's pause sends //action:pause first), no control
+        command (a resume's M24) on its way, the file not done."""
         side = stream.printer_side
+        host = self.worker.host
         return (
             side is not None
             and not side.done
             and stream.drained
             and stream.state is CommandState.WAIT_FOR_ACK
-            and not self.worker.host.script_queue
+            and not host.requested
+            and not host.script_queue
         )
 
     # -- progress and the end of a job ---------------------------------------------

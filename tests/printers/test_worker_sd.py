@@ -247,3 +247,27 @@ def test_a_print_stopped_on_the_printers_display_ends_the_job(
     assert job.message == (
         "the printer stopped printing LONG.GCO by itself (cancelled on its display?)"
     )
+
+
+def test_not_sd_printing_after_a_pause_was_asked_is_not_a_stop(make_printer):
+    # The display's pause sends //action:pause, then M25 makes the printer report
+    # `Not SD printing`: read in one chunk, the pause must win, not an abort.
+    from printers.protocol.marlin import MarlinProtocol
+    from printers.streaming import StreamHost
+    from tests.streaming.test_host import Wire
+
+    worker = PrinterWorker(make_printer())
+    worker.host = StreamHost(MarlinProtocol(checksums="never", flow="ping_pong"))
+    job = Job(pk=1, name="LONG.GCO", sd_name="LONG.GCO", kind=Job.Kind.SD_PRINT)
+    stream = worker.sd.print_stream(job)
+    worker.host.submit(stream)
+    Wire(worker.host).run(5)  # M23, M24 acknowledged: the printer prints
+
+    worker.host.request_pause(script=True)
+    worker.sd.receive("Not SD printing")
+    assert worker.host.requested == "pause"
+
+    worker.host.advance(0.0)
+    worker.sd.receive("Not SD printing")  # paused now: still no stop
+    assert worker.host.requested == ""
+    assert stream.outcome == ""
