@@ -1,8 +1,8 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_window.py, marlin_recovery.py, marlin_trust.py and
-# marlin_probe.py only carry them out (h11's _state.py habit).
+# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py,
+# marlin_trust.py and marlin_probe.py only carry them out (h11's _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
@@ -134,31 +134,24 @@ from __future__ import annotations
 
 import re
 from collections import deque
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
-    Busy,
     FirmwareReset,
-    LineKind,
     LinkFailed,
-    Received,
     Sent,
-    TemperatureReport,
 )
 from printers.protocol.marlin_probe import PROBE_AFTER
 from printers.protocol.marlin_recovery import Recovery
+from printers.protocol.marlin_replies import ReplyHandling
 from printers.protocol.marlin_responses import (
     Reply,
-    ReplyKind,
-    parse_response,
     split_merged,
 )
 from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from printers.protocol.events import Event
 
 __all__ = ["MarlinProtocol"]
@@ -169,7 +162,7 @@ _NEWLINES = re.compile(rb"\r\n|\r|\n")
 _MAX_PARTIAL = 4096
 
 
-class MarlinProtocol:
+class MarlinProtocol(ReplyHandling):
     """The Marlin side of the LinkProtocol contract (see printers.protocol.link).
 
     Lines and the window live in a LineWindow (marlin_window), acknowledgements,
@@ -404,85 +397,6 @@ class MarlinProtocol:
 
     def _pump(self) -> None:
         self._window.pump(self._max_lines())
-
-    # -- replies ---------------------------------------------------------------------
-
-    def _handle_line(self, text: str) -> None:
-        if self._file_list and not text.startswith("ok"):
-            self._file_list = text != "End file list"
-            self._events.append(Received(text, LineKind.RESPONSE))
-            return
-        self._file_list = text == "Begin file list"
-        reply = parse_response(text)
-        self._events.append(Received(reply.text, reply.line_kind))
-        if reply.kind not in (ReplyKind.OK, ReplyKind.RESEND, ReplyKind.SKIP):
-            self._recovery.release_held_ok()
-        self._HANDLERS.get(reply.kind, MarlinProtocol._on_information)(self, reply)
-        self._previous = reply
-
-    def _on_ok(self, reply: Reply) -> None:
-        self._advanced = self._advanced or reply.advanced
-        if reply.event is not None:
-            self._events.append(reply.event)
-        if reply.buffer_free is not None and not self._recovery.awaiting_ok:
-            self._max_b = max(self._max_b, reply.buffer_free)
-        temperatures = isinstance(reply.event, TemperatureReport)
-        self._recovery.ok(reply.number, temperatures=temperatures)
-
-    def _on_resend(self, reply: Reply) -> None:
-        self._recovery.resend(reply, self._previous)
-
-    def _on_skip(self, reply: Reply) -> None:
-        self._recovery.skip(reply.number)
-
-    def _on_wait(self, reply: Reply) -> None:
-        self._recovery.wait(printing=self.printing)
-
-    def _on_busy(self, reply: Reply) -> None:
-        event = reply.event
-        self._recovery.busy(event.message if isinstance(event, Busy) else "")
-        self._on_information(reply)
-
-    def _on_temperature(self, reply: Reply) -> None:
-        self._recovery.temperature()
-        self._on_information(reply)
-
-    def _on_start(self, reply: Reply) -> None:
-        self._events.append(reply.event or FirmwareReset(reply.text))
-        self.abandon()
-
-    def _on_halt(self, reply: Reply) -> None:
-        self._on_information(reply)
-        self.abandon()
-
-    def _on_firmware_info(self, reply: Reply) -> None:
-        # T6: RepRapFirmware does not check the line sequence, so a probe could
-        # not tell a lost line from a lost ok there.
-        if "reprapfirmware" in reply.text.lower().replace(" ", ""):
-            self._recovery.prober.probing = False
-        self._on_information(reply)
-
-    def _on_information(self, reply: Reply) -> None:
-        if reply.event is not None:
-            self._events.append(reply.event)
-
-    def _on_resend_error(self, reply: Reply) -> None:
-        """Error lines of the resend flow wait for their Resend (R1b, R8)."""
-        self._recovery.line_error(reply.number)
-
-    _HANDLERS: ClassVar[dict[ReplyKind, Callable[[MarlinProtocol, Reply], None]]] = {
-        ReplyKind.OK: _on_ok,
-        ReplyKind.RESEND: _on_resend,
-        ReplyKind.SKIP: _on_skip,
-        ReplyKind.WAIT: _on_wait,
-        ReplyKind.BUSY: _on_busy,
-        ReplyKind.TEMPERATURE: _on_temperature,
-        ReplyKind.FIRMWARE_INFO: _on_firmware_info,
-        ReplyKind.START: _on_start,
-        ReplyKind.HALT: _on_halt,
-        ReplyKind.LINE_NUMBER_ERROR: _on_resend_error,
-        ReplyKind.CHECKSUM_ERROR: _on_resend_error,
-    }
 
     def _silent_reset(self, banner: str) -> None:
         """R7: the firmware counts from zero again without having said so."""
