@@ -125,3 +125,30 @@ def test_prusaslicer_with_a_key_bound_to_a_printer_uploads_there(
     reply = prusaslicer_upload(client, key, "a.gcode", to_print=True)
     assert reply.status_code == 201, reply.content
     assert Job.objects.get().printer == right
+
+
+@pytest.mark.django_db
+def test_the_demo_key_uploads_on_the_bare_address_to_the_simulated_marlin(
+    client: object, settings: object, tmp_path
+) -> None:
+    # `make run`'s demo: two printers and an unbound key. The address and key it
+    # prints are all a new user types into PrusaSlicer; the job lands on marlin-sim.
+    import io
+
+    from django.core.management import call_command
+
+    settings.DATA_DIR = tmp_path  # type: ignore[attr-defined]
+    settings.JOB_STORAGE_DIR = tmp_path / "jobs"  # type: ignore[attr-defined]
+    out = io.StringIO()
+    call_command("setup_demo", stdout=out)
+    printed = out.getvalue()
+    key = printed.split("shown once): ", 1)[1].split()[0]
+    assert f"Hostname http://127.0.0.1:8000, API Key {key}" in printed
+
+    version = client.get("/api/version", headers={"X-Api-Key": key})  # type: ignore[attr-defined]
+    assert version.status_code == 200
+    response = prusaslicer_upload(client, key, "part.gcode", to_print=True)
+
+    assert response.status_code == 201, response.content
+    job = Job.objects.get()
+    assert (job.printer.slug, job.state) == ("marlin-sim", "queued")

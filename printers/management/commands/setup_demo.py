@@ -16,6 +16,7 @@ from django.core.management.base import BaseCommand
 from jobs.services import storage_dir
 from printers.models import Printer
 from printhost.access import issue_key
+from printhost.models import UserProfile
 
 
 def demo_gcode(size: float = 40.0, loops: int = 10) -> str:
@@ -34,9 +35,9 @@ class Command(BaseCommand):
     help = "Create a demo admin and two simulated printers (Marlin and GRBL) if none exist."
 
     def handle(self, *args: Any, **options: Any) -> None:
-        self._admin()
         if Printer.objects.exists():
             self.stdout.write("printers already exist; no demo printers added")
+            self._admin(None)
             return
         links = Path(settings.DATA_DIR) / "sim"
         links.mkdir(parents=True, exist_ok=True)
@@ -62,8 +63,10 @@ class Command(BaseCommand):
             )
             (storage_dir(printer) / "demo-square.gcode").write_text(demo_gcode())
             self.stdout.write(f"added {printer}, simulated on {link}")
+        self._admin(Printer.objects.get(slug="marlin-sim"))
 
-    def _admin(self) -> None:
+    def _admin(self, default: Printer | None) -> None:
+        """The demo admin; uploads without a printer in the URL go to *default*."""
         users = get_user_model()
         if users.objects.filter(username="admin").exists():
             self.stdout.write("demo admin exists (user: admin)")
@@ -71,5 +74,25 @@ class Command(BaseCommand):
         password = secrets.token_urlsafe(9)
         admin = users.objects.create_superuser("admin", "admin@localhost", password)
         self.stdout.write(f"demo admin created: user admin, password {password}")
+        if default is not None:
+            UserProfile.objects.update_or_create(
+                user=admin, defaults={"default_printer": default}
+            )
         _, key = issue_key(admin, "demo (setup_demo)")
         self.stdout.write(f"demo API key (for curl and slicers; shown once): {key}")
+        if default is not None:
+            self.stdout.write(slicer_help(key, default.slug))
+
+
+def slicer_help(key: str, slug: str, url: str = "http://127.0.0.1:8000") -> str:
+    """What to type in the slicers to send jobs to the demo (the admin's default)."""
+    return "\n".join(
+        [
+            f"send jobs from a slicer to {slug} (uploads on the bare address go there):",
+            f"  PrusaSlicer / OrcaSlicer: Physical Printer > Host Type OctoPrint (or "
+            f"Moonraker), Hostname {url}, API Key {key}",
+            f"  Cura: OctoPrint Connection plugin, Add instance {url}, API key {key}",
+            f"  another printer: {url}/p/<slug> as the address, for example "
+            f"{url}/p/grbl-sim",
+        ]
+    )
