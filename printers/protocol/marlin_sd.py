@@ -156,6 +156,15 @@ _CARD = {
 }
 
 
+#: Lines that start like this are never about the card (a fast exit for oks).
+_NOT_ABOUT_THE_CARD = ("ok", " T:", "T:", "busy:", "echo:busy:", "Resend:", "wait")
+_SIMPLE: dict[str, SdEvent] = {
+    "Not SD printing": SdNotPrinting(),
+    "Done printing file": SdDone(),
+    "Done saving file.": SdSaved(),
+}
+
+
 class SdDialogue:
     """Turns response lines about the SD card into events; gathers M20's list."""
 
@@ -168,7 +177,13 @@ class SdDialogue:
         return self._listing is not None
 
     def receive(self, text: str) -> SdEvent | None:
-        """One response line; an event when it is about the SD card, else None."""
+        """One response line; an event when it is about the SD card, else None.
+
+        Called for every line the printer sends: an `ok` (most of them, while a job
+        streams) or a temperature report costs one prefix test.
+        """
+        if self._listing is None and text.startswith(_NOT_ABOUT_THE_CARD):
+            return None
         line = text.strip()
         if line.startswith("echo:"):
             line = line[5:].strip()
@@ -197,13 +212,8 @@ def _parse(line: str) -> SdEvent | None:
         return SdProgress(int(match[1]), int(match[2]))
     if match := _OPENED.match(line):
         return SdFileOpened(match[1], int(match[2]))
-    simple: dict[str, SdEvent] = {
-        "Not SD printing": SdNotPrinting(),
-        "Done printing file": SdDone(),
-        "Done saving file.": SdSaved(),
-    }
-    if line in simple:
-        return simple[line]
+    if line in _SIMPLE:
+        return _SIMPLE[line]
     if line in _CARD:
         return SdCardState(_CARD[line], line)
     for prefix, kind in (

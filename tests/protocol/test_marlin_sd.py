@@ -129,3 +129,29 @@ def test_file_names_that_look_like_replies_do_not_disturb_the_flow():
     assert [e for e in events if isinstance(e, Ack)] == [Ack("list")]
     assert not [e for e in events if isinstance(e, FirmwareReset)]
     assert proto.in_flight == 0
+
+
+@pytest.mark.parametrize("echo", ["", "echo:"])
+def test_replies_are_read_with_or_without_marlins_echo_prefix(echo):
+    # Marlin 2.1 prints some of these through SERIAL_ECHO_MSG ("echo:..."), older
+    # builds and Prusa's firmware print them bare.
+    dialogue = SdDialogue()
+    lines = {
+        "File opened: A.GCO Size: 12": SdFileOpened("A.GCO", 12),
+        "open failed, File: B.GCO.": SdOpenFailed("B.GCO"),
+        "Done printing file": SdDone(),
+        "Writing to file: C.GCO": SdWriting("C.GCO"),
+        "Done saving file.": SdSaved(),
+        "File deleted:C.GCO": SdDeleted("C.GCO"),
+        "SD printing byte 6/12": SdProgress(6, 12),
+        "Not SD printing": SdNotPrinting(),
+        "No media": SdCardState(False, "No media"),
+    }
+    for line, event in lines.items():
+        assert dialogue.receive(echo + line) == event, line
+
+
+def test_oks_and_reports_are_never_about_the_card():
+    dialogue = SdDialogue()
+    for line in ("ok", "ok N12 P15 B3", " T:21.0 /0.0 B:20.9 /0.0", "wait", "busy:"):
+        assert dialogue.receive(line) is None
