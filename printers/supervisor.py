@@ -1,4 +1,5 @@
-"""runhost's supervisor: daphne, the simulators and one worker per enabled printer.
+"""runhost's supervisor: daphne, Celery (worker and beat), the simulators and one
+worker per enabled printer.
 
 One loop, no threads: start what should run, poll children, restart the ones that
 died with a doubling delay, and on stop send SIGTERM then wait (SIGKILL after a
@@ -10,11 +11,14 @@ from __future__ import annotations
 import logging
 import shlex
 import signal
+import socket
 import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from django.conf import settings
 
 from printers.models import Printer
 
@@ -81,13 +85,34 @@ class Child:
             self.process.wait()
 
 
+def celery_children(python: str) -> dict[str, list[str]]:
+    """The Celery worker (file analysis) and beat (periodic upkeep) of this host."""
+    app = [python, "-m", "celery", "--app", "printhost"]
+    return {
+        "celery": [
+            *app, "worker", "--loglevel", "INFO",
+            "--concurrency", str(settings.PRINTHOST_CELERY_CONCURRENCY),
+            "--hostname", f"printhost@{socket.gethostname()}",
+            "--max-tasks-per-child", "100",
+            "--without-gossip", "--without-mingle",
+        ],
+        "celery-beat": [
+            *app, "beat", "--loglevel", "INFO",
+            "--schedule", settings.CELERY_BEAT_SCHEDULE_FILENAME,
+        ],
+    }  # fmt: skip
+
+
 class Supervisor:
     """Keeps the host's processes running until `shutdown` is set."""
 
-    def __init__(self, *, bind: str, port: int, serve_web: bool = True) -> None:
+    def __init__(
+        self, *, bind: str, port: int, serve_web: bool = True, celery: bool = True
+    ) -> None:
         self.bind = bind
         self.port = port
         self.serve_web = serve_web
+        self.celery = celery
         self.children: dict[str, Child] = {}
         self.shutdown = False
         self._rescan_at = 0.0
@@ -119,6 +144,8 @@ class Supervisor:
                 python, "-m", "printhost.serve", "-b", self.bind, "-p", str(self.port),
                 "printhost.asgi:application",
             ]  # fmt: skip
+        if self.celery:
+            wanted.update(celery_children(python))
         printers = list(Printer.objects.filter(enabled=True).order_by("pk"))
         for printer in printers:
             if printer.simulator:

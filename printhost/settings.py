@@ -54,6 +54,7 @@ INSTALLED_APPS = [
 ]
 
 MIDDLEWARE = [
+    "printhost.slashes.CollapseSlashesMiddleware",
     "django.middleware.security.SecurityMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
@@ -113,8 +114,54 @@ if REDIS_URL:
 else:
     CHANNEL_LAYERS = {"default": {"BACKEND": "channels.layers.InMemoryChannelLayer"}}
 
-CELERY_BROKER_URL = REDIS_URL or "memory://"
-CELERY_TASK_ALWAYS_EAGER = not REDIS_URL
+# Celery (printhost/celery.py says why this broker): tasks never run eagerly, so
+# no analysis ever runs inside a web request.
+CELERY_BROKER_URL = (
+    env_str("PRINTHOST_CELERY_BROKER", "") or REDIS_URL or "filesystem://"
+)
+if CELERY_BROKER_URL.startswith("filesystem://"):
+    _CELERY_QUEUE = DATA_DIR / "celery"
+    for _folder in ("queue", "control"):
+        (_CELERY_QUEUE / _folder).mkdir(parents=True, exist_ok=True)
+    CELERY_BROKER_TRANSPORT_OPTIONS = {
+        "data_folder_in": str(_CELERY_QUEUE / "queue"),
+        "data_folder_out": str(_CELERY_QUEUE / "queue"),
+        "control_folder": str(_CELERY_QUEUE / "control"),
+        "store_processed": False,
+    }
+CELERY_TASK_IGNORE_RESULT = True
+#: Hosts sharing one Redis keep their tasks apart by queue name.
+CELERY_TASK_DEFAULT_QUEUE = env_str("PRINTHOST_CELERY_QUEUE", "printhost")
+# A broker that is away must not hold a request up: the sweep sends later.
+CELERY_TASK_PUBLISH_RETRY_POLICY = {
+    "max_retries": 1,
+    "interval_start": 0,
+    "interval_step": 0.5,
+    "interval_max": 0.5,
+}
+CELERY_BROKER_CONNECTION_TIMEOUT = 2.0
+# A task is acknowledged when it ends: a worker killed mid-task leaves it queued
+# (Redis), and the analysis sweep sends again what a broker forgot (filesystem).
+CELERY_TASK_ACKS_LATE = True
+CELERY_TASK_REJECT_ON_WORKER_LOST = True
+CELERY_WORKER_PREFETCH_MULTIPLIER = 1
+CELERY_BROKER_CONNECTION_RETRY_ON_STARTUP = True
+CELERY_WORKER_HIJACK_ROOT_LOGGER = False
+CELERY_BEAT_SCHEDULE_FILENAME = str(DATA_DIR / "celerybeat-schedule")
+#: An analysis whose worker has not reported for this long is sent again (s).
+PRINTHOST_ANALYSIS_STALE_SECONDS = env_float("PRINTHOST_ANALYSIS_STALE_SECONDS", 60.0)
+CELERY_BEAT_SCHEDULE = {
+    "analysis-sweep": {
+        "task": "jobs.tasks.sweep_analyses",
+        "schedule": max(5.0, PRINTHOST_ANALYSIS_STALE_SECONDS / 2),
+    },
+}
+#: Analyses running at once in runhost's Celery worker.
+PRINTHOST_CELERY_CONCURRENCY = max(1, int(env_float("PRINTHOST_CELERY_CONCURRENCY", 1)))
+#: Thumbnails and other files derived from job files, by SHA-256.
+ANALYSIS_DIR = Path(
+    env_str("PRINTHOST_ANALYSIS_DIR", str(DATA_DIR / "analysis"))
+).resolve()
 
 AUTH_PASSWORD_VALIDATORS = [
     {

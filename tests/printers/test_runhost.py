@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 def host(request: pytest.FixtureRequest, tmp_path: Path) -> Host:
     url = postgres_url() if request.param == "postgres" else ""
     host = Host(tmp_path, url)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     return host
 
 
@@ -36,8 +36,11 @@ def test_sigkilled_worker_is_restarted_and_its_job_left_interrupted(host: Host):
     text = segments(20000)
     (host.folder / "job.gcode").write_text(text)
     host.manage("add_job", "p0", str(host.folder / "job.gcode"))
+    # A short lease: the new worker takes the printer 4 s after the kill, not 10.
+    env = {**host.env, "PRINTHOST_LEASE_SECONDS": "4"}
     runhost = subprocess.Popen(
-        [sys.executable, "manage.py", "runhost", "--no-web"], cwd=ROOT, env=host.env,
+        [sys.executable, "manage.py", "runhost", "--no-web", "--no-celery"], cwd=ROOT,
+        env=env,
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:
@@ -73,7 +76,7 @@ def test_sigkilled_worker_is_restarted_and_its_job_left_interrupted(host: Host):
 
 def test_run_printer_with_an_unknown_slug_exits_with_a_clear_error(tmp_path: Path):
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     done = host.manage("run_printer", "nope", check=False)
     assert done.returncode == 1
     assert "unknown printer 'nope'" in done.stderr
@@ -91,7 +94,7 @@ def test_run_printer_with_an_unknown_slug_exits_with_a_clear_error(tmp_path: Pat
 )
 def test_add_job_refuses_bad_files_with_a_clear_error(tmp_path: Path, content, error):
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; "
         "Printer.objects.create(name='P', slug='p', port='/dev/null')"

@@ -26,6 +26,11 @@ class Command(BaseCommand):
         parser.add_argument("--bind", default="127.0.0.1")
         parser.add_argument("--port", type=int, default=8000)
         parser.add_argument("--no-web", action="store_true", help="workers only")
+        parser.add_argument(
+            "--no-celery",
+            action="store_true",
+            help="no Celery worker or beat here (another host runs them)",
+        )
 
     def handle(self, *args: Any, **options: Any) -> None:
         # Children (simulators: their --record check) see the same data directory.
@@ -39,7 +44,10 @@ class Command(BaseCommand):
             if refusal:
                 raise CommandError(refusal)
         self.supervisor = Supervisor(
-            bind=options["bind"], port=options["port"], serve_web=not options["no_web"]
+            bind=options["bind"],
+            port=options["port"],
+            serve_web=not options["no_web"],
+            celery=not options["no_celery"],
         )
         signal.signal(signal.SIGTERM, self.on_signal)
         signal.signal(signal.SIGINT, self.on_signal)
