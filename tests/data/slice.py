@@ -1,0 +1,137 @@
+"""Remake the slicer outputs in this folder (run by hand; the tests use the files).
+
+    python tests/data/slice.py
+
+Needs Debian's `prusa-slicer` (2.5.0) and `cura-engine` (4.13.0), and the `cura`
+package's printer definitions (`fdmprinter.def.json`, `fdmextruder.def.json`) in
+the folder named by CURA_DEFINITIONS. The models are made here: a 20 x 20 x 10 mm
+box and a cylinder 16 mm across and 6 mm high.
+
+CuraEngine alone leaves the header's placeholders (`;TIME:6666`, `;Filament used:
+0m`, `;MINX:...`); Cura's front end fills them from what the engine reports, and
+`fill_cura_header` does the same here with the engine's printed figures.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).parent
+PRUSA = HERE / "prusaslicer-2.5_box-and-cylinder.gcode"
+CURA = HERE / "cura-4.13_box.gcode"
+
+Triangle = tuple[tuple[float, float, float], ...]
+
+
+def write_stl(path: Path, triangles: list[Triangle]) -> None:
+    with path.open("wb") as out:
+        out.write(b"\0" * 80 + struct.pack("<I", len(triangles)))
+        for triangle in triangles:
+            out.write(struct.pack("<3f", 0, 0, 0))
+            for vertex in triangle:
+                out.write(struct.pack("<3f", *vertex))
+            out.write(b"\0\0")
+
+
+def box(size_x: float, size_y: float, size_z: float) -> list[Triangle]:
+    v = [(x, y, z) for z in (0, size_z) for y in (0, size_y) for x in (0, size_x)]
+    v = [v[0], v[1], v[3], v[2], v[4], v[5], v[7], v[6]]
+    faces = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4),
+             (1, 2, 6), (1, 6, 5), (2, 3, 7), (2, 7, 6), (3, 0, 4), (3, 4, 7)]  # fmt: skip
+    return [(v[a], v[b], v[c]) for a, b, c in faces]
+
+
+def cylinder(radius: float, height: float, sides: int = 48) -> list[Triangle]:
+    out: list[Triangle] = []
+    for i in range(sides):
+        a0, a1 = 2 * math.pi * i / sides, 2 * math.pi * (i + 1) / sides
+        p0 = (radius * math.cos(a0), radius * math.sin(a0))
+        p1 = (radius * math.cos(a1), radius * math.sin(a1))
+        out += [
+            ((0, 0, 0), (*p1, 0), (*p0, 0)),
+            ((0, 0, height), (*p0, height), (*p1, height)),
+            ((*p0, 0), (*p1, 0), (*p1, height)),
+            ((*p0, 0), (*p1, height), (*p0, height)),
+        ]
+    return out
+
+
+def prusaslicer(models: list[Path]) -> None:
+    subprocess.run(
+        ["prusa-slicer", "--export-gcode", "--gcode-flavor", "marlin2",
+         "--machine-limits-usage", "emit_to_gcode", "--gcode-label-objects",
+         "--layer-height", "0.2", "--first-layer-height", "0.2",
+         "--nozzle-diameter", "0.4", "--filament-diameter", "1.75",
+         "--filament-density", "1.24", "--filament-type", "PLA",
+         "--temperature", "210", "--bed-temperature", "60", "--fill-density", "15%",
+         "--skirts", "1", "--merge", *map(str, models), "-o", str(PRUSA)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+
+
+def cura(model: Path) -> None:
+    definitions = Path(os.environ["CURA_DEFINITIONS"])
+    settings = {
+        "machine_width": 200, "machine_depth": 200, "machine_height": 200,
+        "material_diameter": 1.75, "machine_gcode_flavor": "RepRap (Marlin/Sprinter)",
+        "layer_height": 0.2, "layer_height_0": 0.2, "infill_sparse_density": 15,
+        "material_print_temperature": 210, "material_bed_temperature": 60,
+    }  # fmt: skip
+    args = ["CuraEngine", "slice", "-v", "-j", str(definitions / "fdmprinter.def.json")]
+    for key, value in settings.items():
+        args += ["-s", f"{key}={value}"]
+    args += ["-e0", "-j", str(definitions / "fdmextruder.def.json")]
+    args += ["-e0", "-s", "material_diameter=1.75", "-l", str(model), "-o", str(CURA)]
+    done = subprocess.run(args, check=True, capture_output=True, text=True)
+    fill_cura_header(CURA, done.stdout + done.stderr)
+
+
+def fill_cura_header(path: Path, log: str) -> None:
+    seconds = int(re.search(r"Print time \(s\): (\d+)", log).group(1))  # type: ignore[union-attr]
+    cubic = float(re.search(r"Filament \(mm\^3\): (\d+)", log).group(1))  # type: ignore[union-attr]
+    metres = cubic / (math.pi * (1.75 / 2) ** 2) / 1000
+    xs, ys, zs = [], [], []
+    printing = False
+    for line in path.read_text().splitlines():
+        printing = printing or line.startswith(";LAYER:0")
+        if not printing:
+            continue
+        if line.startswith("G1 ") and " E" in line:
+            words = dict((w[0], w[1:]) for w in line.split() if w[0] in "XYZ")
+            if "X" in words:
+                xs.append(float(words["X"]))
+                ys.append(float(words["Y"]))
+        elif line.startswith(("G0 ", "G1 ")) and " Z" in line:
+            zs.append(float(line.split(" Z")[1].split()[0]))
+    values = {
+        "TIME": str(seconds), "Filament used": f" {metres:.5f}m",
+        "MINX": f"{min(xs):g}", "MINY": f"{min(ys):g}", "MINZ": "0.2",
+        "MAXX": f"{max(xs):g}", "MAXY": f"{max(ys):g}", "MAXZ": f"{max(zs):g}",
+    }  # fmt: skip
+    text = path.read_text()
+    for key, value in values.items():
+        text = re.sub(
+            rf"^;{re.escape(key)}:.*$", f";{key}:{value}", text, count=1, flags=re.M
+        )
+    path.write_text(text)
+
+
+def main() -> int:
+    with tempfile.TemporaryDirectory() as folder:
+        cube, round_ = Path(folder) / "box.stl", Path(folder) / "cylinder.stl"
+        write_stl(cube, box(20, 20, 10))
+        write_stl(round_, cylinder(8, 6))
+        prusaslicer([cube, round_])
+        cura(cube)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
