@@ -6,7 +6,8 @@ from typing import TYPE_CHECKING
 
 from django.contrib import admin, messages
 
-from jobs.models import ACTIVE_STATES, Job
+from jobs import analysing
+from jobs.models import ACTIVE_STATES, FileAnalysis, Job
 from jobs.services import delete_job_file, request_action
 from printers.models import Printer
 
@@ -27,6 +28,7 @@ class JobAdmin(admin.ModelAdmin):
         "sd_name",
         "state",
         "progress_percent",
+        "analysis_state",
         "lines_acked",
         "line_count",
         "created_at",
@@ -49,12 +51,23 @@ class JobAdmin(admin.ModelAdmin):
         "finished_at",
         "state",
         "message",
+        "analysis",
     ]
+    list_select_related = ["printer", "analysis"]
     actions = ["abort", "requeue", "mark_bed_clear", "delete_with_files"]
 
     @admin.display(description="progress")
     def progress_percent(self, job: Job) -> str:
         return f"{job.progress * 100:.1f} %"
+
+    @admin.display(description="analysis")
+    def analysis_state(self, job: Job) -> str:
+        analysis = job.analysis
+        if analysis is None:
+            return "-"
+        if analysis.state == FileAnalysis.State.DONE:
+            return _duration(analysis.summary.get("estimated_seconds"))
+        return analysis.get_state_display()
 
     @admin.action(description="Abort the running job")
     def abort(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
@@ -99,3 +112,66 @@ class JobAdmin(admin.ModelAdmin):
             job.delete()
         if busy:
             messages.warning(request, f"{busy} running job(s) kept: abort them first")
+
+
+def _duration(seconds: float | None) -> str:
+    if seconds is None:
+        return "done"
+    minutes, _ = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes:02d} min" if hours else f"{minutes} min"
+
+
+@admin.register(FileAnalysis)
+class FileAnalysisAdmin(admin.ModelAdmin):
+    """What the Celery worker found in each file, and analyses that failed."""
+
+    list_display = [
+        "id",
+        "sha256_short",
+        "state",
+        "estimated",
+        "attempts",
+        "reason",
+        "created_at",
+        "finished_at",
+    ]
+    list_filter = ["state", "firmware", "created_at"]
+    search_fields = ["sha256", "reason", "jobs__name"]
+    readonly_fields = [
+        "sha256", "profile", "firmware", "settings", "state", "reason", "summary",
+        "attempts", "worker", "bytes_done", "sent_at", "created_at", "started_at",
+        "heartbeat_at", "finished_at",
+    ]  # fmt: skip
+    exclude = ["result"]
+    actions = ["analyse_again"]
+
+    @admin.display(description="file")
+    def sha256_short(self, analysis: FileAnalysis) -> str:
+        names = list(analysis.jobs.values_list("name", flat=True)[:1])
+        return f"{names[0] if names else '?'} ({analysis.sha256[:12]})"
+
+    @admin.display(description="estimate")
+    def estimated(self, analysis: FileAnalysis) -> str:
+        if analysis.state != FileAnalysis.State.DONE:
+            return "-"
+        return _duration(analysis.summary.get("estimated_seconds"))
+
+    @admin.action(description="Analyse again")
+    def analyse_again(
+        self, request: HttpRequest, queryset: QuerySet[FileAnalysis]
+    ) -> None:
+        again = list(
+            queryset.exclude(state=FileAnalysis.State.RUNNING).values_list(
+                "pk", flat=True
+            )
+        )
+        FileAnalysis.objects.filter(pk__in=again).update(
+            state=FileAnalysis.State.PENDING, worker="", reason="", sent_at=None
+        )
+        for pk in again:
+            analysing.send(pk)
+        messages.info(request, f"{len(again)} analysis(es) sent to the Celery worker")
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False

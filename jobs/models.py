@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -14,6 +15,78 @@ from printers.models import Printer
 
 if TYPE_CHECKING:
     from datetime import datetime
+
+
+class FileAnalysis(models.Model):
+    """What the analysis of one file (for one motion profile) found, or how far it is.
+
+    Keyed by the file's SHA-256 and the profile's digest: the same file printed on
+    printers with the same limits is analysed once. Celery runs it
+    (`jobs.tasks.analyse_file`); the row, not the broker, is the truth: a task
+    that finds the row done does nothing, and the sweep sends again what a dead
+    worker left (`jobs.analysing.sweep`).
+    """
+
+    class State(models.TextChoices):
+        PENDING = "pending", "waiting for a Celery worker"
+        RUNNING = "running", "being analysed"
+        DONE = "done", "done"
+        FAILED = "failed", "failed"
+
+    sha256 = models.CharField(max_length=64)
+    profile = models.CharField(
+        max_length=16, help_text="digest of the firmware and motion profile used"
+    )
+    firmware = models.CharField(max_length=16, default="marlin")
+    settings = models.JSONField(
+        default=dict, help_text="the limits and materials the analysis starts from"
+    )
+    state = models.CharField(
+        max_length=16, choices=State.choices, default=State.PENDING
+    )
+    reason = models.TextField(blank=True, help_text="why it failed or is partial")
+    result = models.JSONField(default=dict, blank=True)
+    #: The figures lists and cards show (`analysing.summary_of`), without the
+    #: timeline and layers that only a running job or the preview needs.
+    summary = models.JSONField(default=dict, blank=True)
+    attempts = models.PositiveIntegerField(default=0)
+    worker = models.CharField(max_length=200, blank=True)
+    sent_at = models.DateTimeField(
+        null=True, blank=True, help_text="when a task was last handed to the broker"
+    )
+    bytes_done = models.BigIntegerField(default=0)
+    created_at = models.DateTimeField(auto_now_add=True)
+    started_at = models.DateTimeField(null=True, blank=True)
+    heartbeat_at = models.DateTimeField(null=True, blank=True)
+    finished_at = models.DateTimeField(null=True, blank=True)
+
+    class Meta:
+        verbose_name_plural = "file analyses"
+        constraints = [
+            models.UniqueConstraint(fields=["sha256", "profile"], name="analysis_key")
+        ]
+        indexes = [
+            models.Index(fields=["state", "heartbeat_at"], name="analysis_state")
+        ]
+
+    def __str__(self) -> str:
+        return f"analysis of {self.sha256[:12]} ({self.state})"
+
+    def as_dict(self, *, size: int = 0) -> dict[str, Any]:
+        """State and figures, as every client sees them under a job's `analysis`.
+
+        `progress` is the share of the file (of *size* bytes) read so far, while the
+        analysis runs.
+        """
+        running = self.state == self.State.RUNNING and size > 0
+        return {
+            "state": self.state,
+            "reason": self.reason,
+            "progress": round(100 * min(1, self.bytes_done / size), 1)
+            if running
+            else None,
+            **self.summary,
+        }
 
 
 class Job(models.Model):
@@ -54,6 +127,13 @@ class Job(models.Model):
     size_bytes = models.BigIntegerField(default=0)
     line_count = models.BigIntegerField(default=0, help_text="commands to send")
     sha256 = models.CharField(max_length=64, blank=True)
+    analysis = models.ForeignKey(
+        FileAnalysis,
+        on_delete=models.SET_NULL,
+        null=True,
+        blank=True,
+        related_name="jobs",
+    )
     position = models.BigIntegerField(default=0, help_text="queue order, lowest first")
     origin = models.CharField(max_length=100, blank=True)
     uploaded_by = models.ForeignKey(
@@ -118,13 +198,54 @@ class Job(models.Model):
             return None
         return elapsed / share * (1 - share)
 
+    def timing(self) -> dict[str, Any]:
+        """Remaining time, end time, layer and filament so far, by the file's analysis
+        (`jobs.eta`) while the job runs; the linear guess when there is none."""
+        elapsed, linear = self.elapsed_seconds(), self.remaining_seconds()
+        out: dict[str, Any] = {
+            "eta": None if linear is None else round(linear, 1),
+            "eta_origin": None if linear is None else "linear",
+            "ends_at": None,
+            "time_progress": None,
+            "layer": None,
+            "layers": None,
+            "filament_used": None,
+        }
+        running = self.state in ACTIVE_STATES and elapsed is not None
+        analysed = None
+        if running and self.analysis_id:
+            from jobs.analysing import analysis_of
+
+            analysed = analysis_of(self)
+        if analysed is not None:
+            from jobs.eta import estimate
+
+            found = estimate(analysed, line=self.lines_acked, elapsed=elapsed)
+            out.update(
+                eta=found.remaining,
+                eta_origin=found.origin,
+                time_progress=found.progress,
+                layer=found.layer,
+                layers=found.layers,
+                filament_used=found.filament_used,
+            )
+        if running and out["eta"] is not None:
+            out["ends_at"] = (
+                timezone.now() + timedelta(seconds=out["eta"])
+            ).isoformat()
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         """The job as every client sees it (API, websockets): one shape everywhere.
 
         `progress` is the percentage of the file's bytes the firmware acknowledged;
-        `elapsed` and `eta` are seconds (None when unknown).
+        `elapsed` and `eta` are seconds (None when unknown); `eta_origin` says how
+        the ETA was made ("mixed-analysis": the analysis corrected by the measured
+        pace; "linear": elapsed over bytes); `analysis` is the file's analysis
+        (None for a print from the SD card).
         """
-        elapsed, eta = self.elapsed_seconds(), self.remaining_seconds()
+        elapsed = self.elapsed_seconds()
+        timing = self.timing()
 
         def when(value: datetime | None) -> str | None:
             return value.isoformat() if value else None
@@ -150,8 +271,21 @@ class Job(models.Model):
             "started": when(self.started_at),
             "finished": when(self.finished_at),
             "elapsed": None if elapsed is None else round(elapsed, 1),
-            "eta": None if eta is None else round(eta, 1),
+            **timing,
+            "analysis": self.analysis_dict(),
         }
+
+    def analysis_dict(self) -> dict[str, Any] | None:
+        """The file's analysis with the job's own thumbnail addresses."""
+        if not self.analysis_id or self.analysis is None:
+            return None
+        data = self.analysis.as_dict(size=self.size_bytes)
+        base = f"/printer/thumbnail/{self.printer.slug}/{self.pk}/"
+        data["thumbnails"] = [
+            {**picture, "url": base + picture["name"]}
+            for picture in data.get("thumbnails", [])
+        ]
+        return data
 
 
 FINISHED_STATES = frozenset(
@@ -208,7 +342,8 @@ def running_job(printer_id: int) -> Job | None:
     """The printer's printing or paused job, if any (the worker runs one at a time)."""
     return (
         Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES)
-        .select_related("printer")
+        .select_related("printer", "analysis")
+        .defer("analysis__result")
         .order_by("started_at", "pk")
         .first()
     )

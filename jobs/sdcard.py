@@ -25,10 +25,12 @@ __all__ = [
     "SdRefused",
     "card_files",
     "card_name",
+    "card_present",
     "delete_sd_file",
     "list_sd_card",
     "queue_sd_print",
     "queue_sd_upload",
+    "require_card",
 ]
 
 #: What a name on the card may hold: it goes on a command line (`M23 <name>`), so no
@@ -61,9 +63,15 @@ def card_files(printer: Printer) -> dict[str, dict[str, Any]]:
     return {str(f.get("name", "")).upper(): f for f in files if f.get("name")}
 
 
-def _check_printer(printer: Printer) -> None:
+def card_present(printer: Printer) -> bool:
+    """The printer's last listing found a card in it (OctoPrint's `sdReady`)."""
+    return bool((printer.sd_card or {}).get("present"))
+
+
+def require_card(printer: Printer) -> None:
+    """SdRefused unless the printer's firmware can have an SD card (not GRBL)."""
     if printer.is_grbl:
-        raise SdRefused(f"{printer.slug} runs GRBL, which has no SD card to print from")
+        raise SdRefused(f"{printer.slug} runs GRBL, which has no SD card")
 
 
 def queue_sd_print(
@@ -78,7 +86,7 @@ def queue_sd_print(
     The name need not be in the last listing (files come and go from the printer's
     display); if the printer cannot open it, the job fails with the printer's words.
     """
-    _check_printer(printer)
+    require_card(printer)
     sd_name = card_name(name)
     listed = card_files(printer).get(sd_name, {})
     return Job.objects.create(
@@ -108,7 +116,7 @@ def queue_sd_upload(
     and no waiting upload has. With *print_after*, a print of it from the card is
     queued when the copy is complete (never after a failed or aborted copy).
     """
-    _check_printer(printer)
+    require_card(printer)
     if source.printer_id != printer.pk:
         raise SdRefused(f"job {source.pk} belongs to another printer")
     if source.kind != Job.Kind.PRINT or not source.file:
@@ -147,7 +155,7 @@ def queue_sd_upload(
 
 def list_sd_card(printer: Printer, *, origin: str = "") -> QueuedCommand:
     """Ask the worker to read the card's listing again (M20)."""
-    _check_printer(printer)
+    require_card(printer)
     return QueuedCommand.objects.create(
         printer=printer,
         kind=QueuedCommand.Kind.ACTION,
@@ -158,7 +166,7 @@ def list_sd_card(printer: Printer, *, origin: str = "") -> QueuedCommand:
 
 def delete_sd_file(printer: Printer, name: str, *, origin: str = "") -> QueuedCommand:
     """Ask the worker to delete *name* from the card (M30); it lists the card again."""
-    _check_printer(printer)
+    require_card(printer)
     return QueuedCommand.objects.create(
         printer=printer,
         kind=QueuedCommand.Kind.ACTION,

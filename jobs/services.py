@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, BinaryIO
 from django.conf import settings
 from django.db import transaction
 
+from jobs.analysing import request_analysis
 from jobs.gcode import BadGcode, FileFacts, inspect_file
 from jobs.models import Job
 from jobs.paths import inside
@@ -163,6 +164,13 @@ def reprint(job: Job, *, origin: str = "", user: AbstractBaseUser | None = None)
     end of the queue."""
     if job.file and not job.path.is_file():
         raise BadGcode(f"{job.name}: the stored file is gone")
+    with transaction.atomic():
+        again = _copy_job(job, origin=origin, user=user)
+        request_analysis(again)
+    return again
+
+
+def _copy_job(job: Job, *, origin: str, user: AbstractBaseUser | None) -> Job:
     return Job.objects.create(
         printer=job.printer,
         name=job.name,
@@ -222,7 +230,7 @@ def _create_job(
 ) -> Job:
     relative = path.resolve().relative_to(Path(settings.JOB_STORAGE_DIR).resolve())
     with transaction.atomic():
-        return Job.objects.create(
+        job = Job.objects.create(
             state=state,
             uploaded_by=user,
             printer=printer,
@@ -234,6 +242,8 @@ def _create_job(
             position=next_position(printer.pk),
             origin=origin,
         )
+        request_analysis(job)
+    return job
 
 
 def send_command(printer: Printer, text: str, *, origin: str = "") -> QueuedCommand:

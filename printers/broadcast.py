@@ -133,7 +133,12 @@ class LivePublisher:
         """A job's row was saved: publish its progress as stored."""
         if not self.enabled or job_id is None:
             return
-        job = Job.objects.filter(pk=job_id).select_related("printer").first()
+        job = (
+            Job.objects.filter(pk=job_id)
+            .select_related("printer", "analysis")
+            .defer("analysis__result")
+            .first()
+        )
         if job is not None:
             self._send(job.printer_id, {"type": "job", "job": job.as_dict()})
 

@@ -35,6 +35,18 @@ def validate_simulator(value: str) -> None:
         )
 
 
+def validate_motion_profile(value: object) -> None:
+    """A motion profile the analyser understands (`MotionLimits.from_profile`)."""
+    from jobs.analysis.limits import BadProfile, MotionLimits
+
+    if not isinstance(value, dict):
+        raise ValidationError("an object of motion settings", code="motion")
+    try:
+        MotionLimits.from_profile(value)
+    except BadProfile as error:
+        raise ValidationError(str(error), code="motion") from None
+
+
 def validate_script(value: str) -> None:
     """Every line of a script is one the firmware's protocol takes (printable ASCII).
 
@@ -149,6 +161,23 @@ class Printer(models.Model):
         validators=[MinValueValidator(1), MaxValueValidator(65535)],
         help_text="TCP port of the raw terminal (socket://host:port; API key as the "
         "first line); empty = no terminal",
+    )
+    motion_profile = models.JSONField(
+        default=dict,
+        blank=True,
+        validators=[validate_motion_profile],
+        help_text="the firmware's motion limits for time estimates, overriding its "
+        'defaults: e.g. {"max_acceleration": [1000, 1000, 200, 5000], '
+        '"print_acceleration": 1000, "classic_jerk": true, "jerk": [8, 8, 0.4, 5]} '
+        "(mm, s; axes X Y Z E). The file's own M201-M205 still apply.",
+    )
+    filament_diameter = models.FloatField(
+        default=1.75, validators=[MinValueValidator(0.1), MaxValueValidator(10)]
+    )
+    filament_density = models.FloatField(
+        default=1.24,
+        validators=[MinValueValidator(0.1), MaxValueValidator(25)],
+        help_text="g/cm³ (PLA 1.24, PETG 1.27, ABS 1.04); a file's own value wins",
     )
 
     # Written by the worker only.
