@@ -19,6 +19,7 @@ from ninja.security.base import AuthBase
 from ninja.utils import check_csrf
 
 from jobs.gcode import BadGcode
+from jobs.sdcard import BadCardName, SdRefused
 from jobs.services import ChecksumMismatch
 from printers.models import Printer
 from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_request
@@ -178,6 +179,14 @@ def install_error_handlers(api: Any) -> None:
     @api.exception_handler(ChecksumMismatch)
     def _checksum(request: HttpRequest, exc: Exception) -> HttpResponse:
         return reply(request, str(exc), 422)
+
+    @api.exception_handler(BadCardName)
+    def _bad_card_name(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, str(exc), 422)
+
+    @api.exception_handler(SdRefused)
+    def _no_card(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, str(exc), 409)
 
     @api.exception_handler(BadGcode)
     def _bad_gcode(request: HttpRequest, exc: Exception) -> HttpResponse:

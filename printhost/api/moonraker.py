@@ -20,6 +20,7 @@ from jobs.models import Job, running_job
 from jobs.services import ChecksumMismatch
 from printers.models import Printer
 from printhost.access import Forbidden, NotAuthenticated
+from printhost.api.analysis import serve_thumbnail
 from printhost.api.common import caller_of
 from printhost.api.dialects import (
     choose_printer,
@@ -139,6 +140,64 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
         f"{prefix}/server/files/gcodes/{name}"
     )
     return response
+
+
+@dialect_route(router, "GET", "/server/files/metadata")
+@moonraker_errors
+def moonraker_metadata(
+    request: HttpRequest, filename: str = "", slug: str | None = None
+) -> HttpResponse:
+    """The file's analysis in Moonraker's metadata shape (Mainsail, Fluidd, apps)."""
+    printer = choose_printer(request, slug, Role.VIEWER)
+    job = find_job(printer, filename)
+    if job is None or not job.file:
+        raise HttpError(404, f"Metadata not available for <{filename}>")
+    data = job.analysis_dict() or {}
+    result: dict[str, Any] = {
+        "filename": stored_name(job),
+        "size": job.size_bytes,
+        "modified": job.created_at.timestamp(),
+        "uuid": job.sha256[:32],
+    }
+    if data.get("state") == "done":
+        result.update(
+            {
+                "slicer": data.get("slicer") or "Unknown",
+                "slicer_version": data.get("slicer_version") or "",
+                "estimated_time": data.get("estimated_seconds"),
+                "filament_total": data.get("filament_total"),
+                "filament_weight_total": data.get("filament_weight_g"),
+                "filament_type": data.get("material") or None,
+                "layer_height": data.get("layer_height"),
+                "first_layer_height": data.get("first_layer_height"),
+                "object_height": data.get("object_height"),
+                "layer_count": data.get("layers"),
+                "nozzle_diameter": data.get("nozzle_diameter"),
+                "thumbnails": [
+                    {
+                        "width": picture["width"],
+                        "height": picture["height"],
+                        "size": picture["size"],
+                        "relative_path": f".thumbs/{job.pk}/{picture['name']}",
+                    }
+                    for picture in data.get("thumbnails", [])
+                ],
+            }
+        )
+    return JsonResponse({"result": result})
+
+
+@dialect_route(router, "GET", "/server/files/gcodes/.thumbs/{job_id}/{name}")
+@moonraker_errors
+def moonraker_thumbnail(
+    request: HttpRequest, job_id: int, name: str, slug: str | None = None
+) -> HttpResponse:
+    """A thumbnail by the `relative_path` the metadata gave (under `gcodes/`)."""
+    printer = choose_printer(request, slug, Role.VIEWER)
+    job = Job.objects.filter(printer=printer, pk=job_id).first()
+    if job is None:
+        raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
+    return serve_thumbnail(request, job, name)
 
 
 @dialect_route(router, "POST", "/printer/print/start")

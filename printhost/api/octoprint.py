@@ -14,6 +14,7 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
+from jobs.sdcard import card_present
 from printers.models import Printer
 from printhost import __version__, logins
 from printhost.access import NotAuthenticated, caller_from_request
@@ -240,7 +241,7 @@ def octoprint_connection_command(
 # -- printer --------------------------------------------------------------------------
 
 
-def _temperatures(printer: Printer) -> dict[str, Any]:
+def octoprint_temperatures(printer: Printer) -> dict[str, Any]:
     """OctoPrint's `temperature` from the worker's `{"T0": {"current", "target"}}`."""
     names = {"B": "bed", "C": "chamber"}
     found: dict[str, Any] = {}
@@ -283,7 +284,7 @@ def state_and_flags(printer: Printer) -> dict[str, Any]:
             "cancelling": False,
             "resuming": False,
             "finishing": False,
-            "sdReady": bool((printer.sd_card or {}).get("present")),
+            "sdReady": card_present(printer),
             "error": error,
             "ready": state == Printer.State.IDLE,
             "closedOrError": not operational,
@@ -299,9 +300,9 @@ def octoprint_printer(request: HttpRequest, slug: str | None = None) -> JsonResp
         return JsonResponse({"error": "Printer is not operational"}, status=409)
     return JsonResponse(
         {
-            "temperature": _temperatures(printer),
+            "temperature": octoprint_temperatures(printer),
             "state": state_and_flags(printer),
-            "sd": {"ready": bool((printer.sd_card or {}).get("present"))},
+            "sd": {"ready": card_present(printer)},
         }
     )
 

@@ -7,6 +7,7 @@ start / cancel / restart / pause. The rest of the dialect is in `octoprint.py`.
 
 from __future__ import annotations
 
+import shutil
 from typing import TYPE_CHECKING, Any
 
 from django.http import HttpRequest, HttpResponse, JsonResponse
@@ -14,7 +15,8 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs.models import Job, running_job
-from jobs.services import reprint
+from jobs.services import reprint, storage_dir
+from printhost.api.analysis import largest_thumbnail, serve_thumbnail
 from printhost.api.common import caller_of
 from printhost.api.dialects import (
     choose_printer,
@@ -55,11 +57,120 @@ def _file_info(request: HttpRequest, job: Job, prefix: str) -> dict[str, Any]:
         "date": int(job.created_at.timestamp()),
         "hash": job.sha256,
         "refs": {"resource": resource, "download": resource},
+        **_analysis_fields(job),
     }
 
 
-def _prefix(slug: str | None) -> str:
+def _analysis_fields(job: Job) -> dict[str, Any]:
+    """OctoPrint's `gcodeAnalysis` and `thumbnail` (relative to the API's base, as
+    the PrusaSlicer-thumbnails plugin gives it) once the file is analysed."""
+    data = job.analysis_dict()
+    if not data or data["state"] != "done":
+        return {}
+    fields: dict[str, Any] = {"gcodeAnalysis": octoprint_analysis(data)}
+    picture = largest_thumbnail(job)
+    if picture:
+        fields["thumbnail"] = f"api/files/thumbnail/{job.pk}/{picture}"
+        fields["thumbnail_src"] = "printhost"
+    return fields
+
+
+def octoprint_analysis(data: dict[str, Any]) -> dict[str, Any]:
+    """A printhost analysis summary in OctoPrint's `gcodeAnalysis` shape."""
+    filament = {}
+    total = data.get("filament_total") or 0.0
+    volume = data.get("filament_volume_mm3") or 0.0
+    for tool, length in enumerate(data.get("filament_mm") or []):
+        share = length / total if total else 0.0
+        filament[f"tool{tool}"] = {
+            "length": length,
+            "volume": round(volume * share / 1000, 3),  # cm³
+        }
+    out: dict[str, Any] = {
+        "estimatedPrintTime": data.get("estimated_seconds"),
+        "filament": filament,
+    }
+    box = data.get("bbox")
+    if box:
+        (x0, y0, z0), (x1, y1, z1) = box
+        out["dimensions"] = {
+            "width": round(x1 - x0, 3), "depth": round(y1 - y0, 3),
+            "height": round(z1 - z0, 3),
+        }  # fmt: skip
+        out["printingArea"] = {
+            "minX": x0, "minY": y0, "minZ": z0, "maxX": x1, "maxY": y1, "maxZ": z1,
+        }  # fmt: skip
+    return out
+
+
+@dialect_route(router, "GET", "/api/files")
+def octoprint_files(request: HttpRequest, slug: str | None = None) -> JsonResponse:
+    """Every stored file of the printer, newest first, with its analysis."""
+    return _file_list(request, slug)
+
+
+@dialect_route(router, "GET", "/api/files/local")
+def octoprint_local_files(
+    request: HttpRequest, slug: str | None = None
+) -> JsonResponse:
+    return _file_list(request, slug)
+
+
+def _file_list(request: HttpRequest, slug: str | None) -> JsonResponse:
+    printer = choose_printer(request, slug, Role.VIEWER)
+    jobs = (
+        Job.objects.filter(printer=printer)
+        .exclude(file="")
+        .select_related("printer", "analysis")
+        .defer("analysis__result")
+        .order_by("-created_at", "-id")
+    )
+    seen: set[str] = set()
+    files = []
+    for job in jobs[:500]:
+        name = stored_name(job)
+        if name not in seen:
+            seen.add(name)
+            files.append(_file_info(request, job, dialect_prefix(slug)))
+    usage = shutil.disk_usage(storage_dir(printer))
+    return JsonResponse({"files": files, "free": usage.free, "total": usage.total})
+
+
+@dialect_route(router, "GET", "/api/files/thumbnail/{job_id}/{name}")
+def octoprint_thumbnail(
+    request: HttpRequest, job_id: int, name: str, slug: str | None = None
+) -> HttpResponse:
+    printer = choose_printer(request, slug, Role.VIEWER)
+    job = (
+        Job.objects.filter(printer=printer, pk=job_id)
+        .select_related("printer", "analysis")
+        .first()
+    )
+    if job is None:
+        raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
+    return serve_thumbnail(request, job, name)
+
+
+def dialect_prefix(slug: str | None) -> str:
+    """What goes before `/api/...` in a resource URL: `/p/<slug>` or nothing."""
     return f"/p/{slug}" if slug else ""
+
+
+def upload_answer(
+    origin: str, info: dict[str, Any], *, done: bool, select: bool, to_print: bool
+) -> JsonResponse:
+    """OctoPrint's 201 to an upload: the file under its origin, and its Location."""
+    response = JsonResponse(
+        {
+            "files": {origin: info},
+            "done": done,
+            "effectiveSelect": select,
+            "effectivePrint": to_print,
+        },
+        status=201,
+    )
+    response["Location"] = info["refs"]["resource"]
+    return response
 
 
 @dialect_route(router, "POST", "/api/files/local")
@@ -71,18 +182,8 @@ def octoprint_upload(request: HttpRequest, slug: str | None = None) -> JsonRespo
     to_print = truthy(request.POST.get("print"))
     select = truthy(request.POST.get("select")) or to_print
     job = upload_from_form(request, printer, queue=to_print)
-    info = _file_info(request, job, _prefix(slug))
-    response = JsonResponse(
-        {
-            "files": {"local": info},
-            "done": True,
-            "effectiveSelect": select,
-            "effectivePrint": to_print,
-        },
-        status=201,
-    )
-    response["Location"] = info["refs"]["resource"]
-    return response
+    info = _file_info(request, job, dialect_prefix(slug))
+    return upload_answer("local", info, done=True, select=select, to_print=to_print)
 
 
 @dialect_route(router, "GET", "/api/files/local/{path:filename}")
@@ -93,7 +194,7 @@ def octoprint_file(
     job = find_job(printer, filename)
     if job is None:
         raise HttpError(404, f"no file {filename!r} on printer {printer.slug!r}")
-    return JsonResponse(_file_info(request, job, _prefix(slug)))
+    return JsonResponse(_file_info(request, job, dialect_prefix(slug)))
 
 
 @dialect_route(router, "POST", "/api/files/local/{path:filename}")
@@ -132,7 +233,7 @@ def octoprint_job(request: HttpRequest, slug: str | None = None) -> JsonResponse
     printer = choose_printer(request, slug, Role.VIEWER)
     job = _current_job(printer)
     file: dict[str, Any] = {"name": None, "path": None, "origin": None, "size": None}
-    completion = print_time = time_left = None
+    completion = print_time = time_left = origin = estimated = filament = None
     if job is not None:
         file = {
             "name": job.name,
@@ -145,16 +246,23 @@ def octoprint_job(request: HttpRequest, slug: str | None = None) -> JsonResponse
         if job.state != Job.State.STORED:
             completion = round(job.progress * 100, 2)
         print_time = elapsed_seconds(job)
-        remaining = job.remaining_seconds()
-        time_left = None if remaining is None else int(remaining)
+        timing = job.timing()
+        if timing["eta"] is not None:
+            time_left, origin = int(timing["eta"]), timing["eta_origin"]
+        data = job.analysis_dict()
+        if data and data["state"] == "done":
+            found = octoprint_analysis(data)
+            estimated, filament = found["estimatedPrintTime"], found["filament"]
+            if timing["time_progress"] is not None:
+                completion = timing["time_progress"]
     state = state_and_flags(printer)["text"]
     return JsonResponse(
         {
             "job": {
                 "file": file,
-                "estimatedPrintTime": None,
+                "estimatedPrintTime": estimated,
                 "lastPrintTime": None,
-                "filament": None,
+                "filament": filament,
                 "user": None,
             },
             "progress": {
@@ -162,7 +270,7 @@ def octoprint_job(request: HttpRequest, slug: str | None = None) -> JsonResponse
                 "filepos": job.bytes_acked if job else None,
                 "printTime": print_time,
                 "printTimeLeft": time_left,
-                "printTimeLeftOrigin": "linear" if time_left is not None else None,
+                "printTimeLeftOrigin": origin,
             },
             "state": state,
         }

@@ -9,7 +9,7 @@ takes it) stores the file and queues its copy onto the card, printed after with
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
@@ -25,23 +25,11 @@ from printhost.api.dialects import (
     upload_from_form,
 )
 from printhost.api.octoprint import no_content
+from printhost.api.octoprint_jobs import dialect_prefix, upload_answer
 from printhost.audit import record
 from printhost.models import Role
 
-if TYPE_CHECKING:
-    from printers.models import Printer
-
 router = Router(tags=["OctoPrint dialect"])
-
-
-def card_ready(printer: Printer) -> bool:
-    """OctoPrint's `sdReady`: the printer listed a card that is present."""
-    return bool((printer.sd_card or {}).get("present"))
-
-
-def _supported(printer: Printer) -> None:
-    if printer.is_grbl:
-        raise HttpError(409, f"{printer.slug} runs GRBL, which has no SD card")
 
 
 def _card_file(request: HttpRequest, entry: dict[str, Any], prefix: str) -> dict:
@@ -59,15 +47,11 @@ def _card_file(request: HttpRequest, entry: dict[str, Any], prefix: str) -> dict
     }
 
 
-def _prefix(slug: str | None) -> str:
-    return f"/p/{slug}" if slug else ""
-
-
 @dialect_route(router, "GET", "/api/files/sdcard")
 def octoprint_sd_files(request: HttpRequest, slug: str | None = None) -> JsonResponse:
     printer = choose_printer(request, slug, Role.VIEWER)
     files = (printer.sd_card or {}).get("files") or []
-    prefix = _prefix(slug)
+    prefix = dialect_prefix(slug)
     return JsonResponse({"files": [_card_file(request, f, prefix) for f in files]})
 
 
@@ -75,32 +59,20 @@ def octoprint_sd_files(request: HttpRequest, slug: str | None = None) -> JsonRes
 def octoprint_sd_upload(request: HttpRequest, slug: str | None = None) -> JsonResponse:
     """Multipart `file` (and `print`): stored, then copied onto the card (a job)."""
     printer = choose_printer(request, slug, Role.OPERATOR)
-    _supported(printer)
+    sdcard.require_card(printer)  # before the upload is stored
     stored = upload_from_form(request, printer, queue=False)
     caller = caller_of(request)
     to_print = truthy(request.POST.get("print"))
-    try:
-        copy = sdcard.queue_sd_upload(
-            printer, stored, print_after=to_print, origin=caller.origin,
-            user=caller.user if caller.authenticated else None,
-        )  # fmt: skip
-    except sdcard.SdRefused as error:
-        raise HttpError(409, str(error)) from None
+    copy = sdcard.queue_sd_upload(
+        printer, stored, print_after=to_print, origin=caller.origin,
+        user=caller.user if caller.authenticated else None,
+    )  # fmt: skip
     record(caller, "sd.upload", printer=printer, job=copy, detail=copy.sd_name)
     info = _card_file(
-        request, {"name": copy.sd_name, "size": copy.size_bytes}, _prefix(slug)
+        request, {"name": copy.sd_name, "size": copy.size_bytes}, dialect_prefix(slug)
     )
-    response = JsonResponse(
-        {
-            "files": {"sdcard": info},
-            "done": False,  # the copy is queued: it takes the link's time
-            "effectiveSelect": to_print,
-            "effectivePrint": to_print,
-        },
-        status=201,
-    )
-    response["Location"] = info["refs"]["resource"]
-    return response
+    # Not done: the copy is a queued job that takes the link's time.
+    return upload_answer("sdcard", info, done=False, select=to_print, to_print=to_print)
 
 
 @dialect_route(router, "POST", "/api/files/sdcard/{path:filename}")
@@ -110,14 +82,11 @@ def octoprint_sd_file_command(
     """`{"command": "select", "print": true}` queues a print from the card; a bare
     select changes nothing (printhost prints what is queued, in order)."""
     printer = choose_printer(request, slug, Role.OPERATOR)
-    _supported(printer)
+    sdcard.require_card(printer)
     body = json_body(request)
     if body.get("command") != "select":
         raise HttpError(400, f"unknown command {body.get('command')!r}; use select")
-    try:
-        name = sdcard.card_name(filename)
-    except sdcard.SdRefused as error:
-        raise HttpError(422, str(error)) from None
+    name = sdcard.card_name(filename)
     if truthy(body.get("print")):
         caller = caller_of(request)
         job = sdcard.queue_sd_print(
@@ -131,14 +100,14 @@ def octoprint_sd_file_command(
 @dialect_route(router, "GET", "/api/printer/sd")
 def octoprint_sd_state(request: HttpRequest, slug: str | None = None) -> JsonResponse:
     printer = choose_printer(request, slug, Role.VIEWER)
-    return JsonResponse({"ready": card_ready(printer)})
+    return JsonResponse({"ready": sdcard.card_present(printer)})
 
 
 @dialect_route(router, "POST", "/api/printer/sd")
 def octoprint_sd_command(request: HttpRequest, slug: str | None = None) -> HttpResponse:
     """`init` and `refresh` list the card again (M20); `release` is not supported."""
     printer = choose_printer(request, slug, Role.OPERATOR)
-    _supported(printer)
+    sdcard.require_card(printer)
     command = json_body(request).get("command")
     if command == "release":
         raise HttpError(409, "releasing the card is not supported; eject it")

@@ -209,7 +209,11 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         )
     if action == "list":
         printer = printer_for(request, slug, Role.VIEWER)
-        jobs = Job.objects.filter(printer=printer).select_related("printer")
+        jobs = (
+            Job.objects.filter(printer=printer)
+            .select_related("printer", "analysis")
+            .defer("analysis__result")
+        )
         jobs = jobs.order_by("position", "id")
         return envelope([j.as_dict() for j in jobs])
     refuse_acting_get(request, f"job a={action}")

@@ -159,7 +159,11 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
         return JsonResponse(answer)
     if call == "listJobs":
         printer = printer_for(request, slug, Role.VIEWER)
-        jobs = Job.objects.filter(printer=printer).select_related("printer")
+        jobs = (
+            Job.objects.filter(printer=printer)
+            .select_related("printer", "analysis")
+            .defer("analysis__result")
+        )
         jobs = jobs.order_by("position", "id")
         return JsonResponse({"data": [j.as_dict() for j in jobs]})
     if call == "getPrinterConfig":

@@ -2,7 +2,8 @@
 
 Printing from the card and copying onto it are jobs in the printer's queue (kinds
 `sd_print` and `sd_upload`, see jobs/sdcard.py); listing and deleting are requests
-for the worker. GETs only read.
+for the worker. GETs only read. The services' refusals map to statuses in
+`common.install_error_handlers`: a bad name 422, no card (GRBL) 409.
 """
 
 from __future__ import annotations
@@ -41,17 +42,7 @@ def _name(body: dict[str, Any], key: str = "name", *, required: bool = True) -> 
     value = body.get(key, "")
     if not isinstance(value, str) or (required and not value.strip()):
         raise HttpError(422, f'send {{"{key}": "<the file\'s name on the card>"}}')
-    if not value.strip():
-        return ""
-    try:
-        return sdcard.card_name(value)
-    except sdcard.SdRefused as error:
-        raise HttpError(422, str(error)) from None
-
-
-def _supported(printer: Printer) -> None:
-    if printer.is_grbl:
-        raise HttpError(409, f"{printer.slug} runs GRBL, which has no SD card")
+    return sdcard.card_name(value) if value.strip() else ""
 
 
 @router.get("/printer/sd/{slug}", summary="The printer's SD card")
@@ -64,7 +55,6 @@ def card(request: HttpRequest, slug: str) -> HttpResponse:
 def refresh(request: HttpRequest, slug: str) -> HttpResponse:
     """The worker asks the printer for its listing (M20); 202 with the request id."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    _supported(printer)
     row = sdcard.list_sd_card(printer, origin=caller_of(request).origin)
     audit.record(caller_of(request), "sd.list", printer=printer)
     return envelope({"id": row.pk}, status=202)
@@ -74,7 +64,6 @@ def refresh(request: HttpRequest, slug: str) -> HttpResponse:
 def print_file(request: HttpRequest, slug: str) -> HttpResponse:
     """JSON `{"name": "PART.GCO"}`: queue a job the printer runs from its card."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    _supported(printer)
     name = _name(json_body(request))
     caller = caller_of(request)
     job = sdcard.queue_sd_print(printer, name, origin=caller.origin, user=caller.user)
@@ -90,7 +79,6 @@ def upload(request: HttpRequest, slug: str) -> HttpResponse:
     with `print`, a print of it from the card follows once the copy is complete.
     """
     printer = printer_for(request, slug, Role.OPERATOR)
-    _supported(printer)
     body = json_body(request)
     job_id, print_after = body.get("job"), body.get("print", False)
     if not isinstance(job_id, int) or isinstance(job_id, bool):
@@ -102,19 +90,14 @@ def upload(request: HttpRequest, slug: str) -> HttpResponse:
     if source is None:
         raise HttpError(404, f"no job {job_id} on {printer.slug}")
     caller = caller_of(request)
-    try:
-        job = sdcard.queue_sd_upload(
-            printer,
-            source,
-            sd_name=name,
-            print_after=print_after,
-            origin=caller.origin,
-            user=caller.user,
-        )
-    except sdcard.BadCardName as error:
-        raise HttpError(422, str(error)) from None
-    except sdcard.SdRefused as error:
-        raise HttpError(409, str(error)) from None
+    job = sdcard.queue_sd_upload(
+        printer,
+        source,
+        sd_name=name,
+        print_after=print_after,
+        origin=caller.origin,
+        user=caller.user,
+    )
     audit.record(caller, "sd.upload", printer=printer, job=job, detail=job.sd_name)
     return envelope(job.as_dict(), status=201)
 
@@ -123,7 +106,6 @@ def upload(request: HttpRequest, slug: str) -> HttpResponse:
 def delete(request: HttpRequest, slug: str) -> HttpResponse:
     """JSON `{"name": "PART.GCO"}`: the worker sends M30 and lists the card again."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    _supported(printer)
     name = _name(json_body(request))
     caller = caller_of(request)
     row = sdcard.delete_sd_file(printer, name, origin=caller.origin)

@@ -35,8 +35,10 @@ def printer_state(printer: Printer) -> dict[str, Any]:
     """Everything a host shows about a printer at a glance."""
     active = running_job(printer.pk)
     status = printer.machine_status or {}
-    queue = Job.objects.filter(printer=printer, state=Job.State.QUEUED).select_related(
-        "printer"
+    queue = (
+        Job.objects.filter(printer=printer, state=Job.State.QUEUED)
+        .select_related("printer", "analysis")
+        .defer("analysis__result")
     )
     return {
         "slug": printer.slug,

@@ -76,7 +76,7 @@ def peak_rss(pid: int) -> int:
 def test_one_gigabyte_upload_keeps_daphne_under_150_mb(tmp_path: Path) -> None:
     host = Host(tmp_path)
     host.env["PRINTHOST_MAX_JOB_BYTES"] = str(2 * SIZE)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; Printer.objects.create("
         "name='Big', slug='big', port='/nonexistent', enabled=False)"
@@ -117,7 +117,7 @@ def test_half_a_gigabyte_multipart_upload_keeps_the_server_under_150_mb(
     tmp_path: Path,
 ) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; Printer.objects.create("
         "name='Big', slug='big', port='/nonexistent', enabled=False)"

@@ -47,7 +47,7 @@ def _executed(record: Path) -> list[str]:
 
 def test_upload_prints_end_to_end_over_http(tmp_path: Path) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     record = host.add_simulated_printer("mk3")
     key = host.add_user("op", role="operator")
     text = segments(300)
@@ -120,7 +120,7 @@ def _drop_mid_patch(port: int, path: str, key: str, at: int, body: bytes) -> Non
 
 def test_resumed_upload_after_a_dropped_connection(tmp_path: Path) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; Printer.objects.create("
         "name='Shelf', slug='shelf', port='/nonexistent', enabled=False)"

@@ -25,7 +25,7 @@ def test_a_prompt_answered_through_the_api_reaches_the_printer_as_m876(
     tmp_path: Path,
 ) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     record = host.add_simulated_printer("mk3")
     key = host.add_user("op", "operator", printer="mk3")
     viewer = host.add_user("watcher", "viewer", printer="mk3")

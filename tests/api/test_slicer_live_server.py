@@ -26,7 +26,7 @@ def test_prusaslicer_octoprint_upload_with_print_runs_on_the_simulated_printer(
     tmp_path: Path,
 ) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     record = host.add_simulated_printer("mk3")
     key = host.add_user("slicer", "operator", printer="mk3")
     with host.running():

@@ -13,6 +13,7 @@ a savepoint that is rolled back, so every caller finds the same world.
 
 from __future__ import annotations
 
+import base64
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,8 @@ from django.core.files.uploadedfile import SimpleUploadedFile
 from django.db import transaction
 from django.test import Client
 
-from jobs import uploads
+from jobs import analysing, uploads
+from jobs.analysis.thumbnails import png_encode
 from jobs.models import Job
 from jobs.services import enqueue_job
 from printers.models import Printer
@@ -76,8 +78,16 @@ ENDPOINTS = [
     ep("POST", "/p/p/api/connection", OPERATOR, body='json:{"command": "connect"}'),
     ep("GET", "/p/p/api/printer", VIEWER),
     ep("POST", "/p/p/api/printer/command", OPERATOR, body='json:{"commands": ["M105"]}'),
+    ep("GET", "/p/p/api/printer/tool", VIEWER),
+    ep("POST", "/p/p/api/printer/tool", OPERATOR, body='json:{"command": "target", "targets": {"tool0": 200}}'),
+    ep("GET", "/p/p/api/printer/bed", VIEWER),
+    ep("POST", "/p/p/api/printer/bed", OPERATOR, body='json:{"command": "target", "target": 60}'),
+    ep("POST", "/p/p/api/printer/printhead", OPERATOR, body='json:{"command": "feedrate", "factor": 100}'),
     ep("POST", "/p/p/api/files/local", OPERATOR, body="file"),
     ep("GET", "/p/p/api/files/local/{file}", VIEWER),
+    ep("GET", "/p/p/api/files", VIEWER),
+    ep("GET", "/p/p/api/files/local", VIEWER),
+    ep("GET", "/p/p/api/files/thumbnail/{stored}/16x16.png", VIEWER),
     ep("POST", "/p/p/api/files/local/{file}", OPERATOR, body='json:{"command": "select"}'),
     ep("GET", "/p/p/api/job", VIEWER),
     ep("POST", "/p/p/api/job", OPERATOR, body='json:{"command": "cancel"}', state="printing"),
@@ -89,6 +99,8 @@ ENDPOINTS = [
     ep("POST", "/p/p/api/printer/sd", OPERATOR, body='json:{"command": "refresh"}'),
     # Moonraker dialect.
     ep("GET", "/p/p/server/info", VIEWER),
+    ep("GET", "/p/p/server/files/metadata?filename={file}", VIEWER),
+    ep("GET", "/p/p/server/files/gcodes/.thumbs/{stored}/16x16.png", VIEWER),
     ep("POST", "/p/p/server/files/upload", OPERATOR, body="file"),
     ep("POST", "/p/p/printer/print/start?filename={file}", OPERATOR),
     ep("POST", "/p/p/printer/print/pause", OPERATOR, state="printing"),
@@ -137,6 +149,9 @@ ENDPOINTS = [
     ep("POST", "/printer/sd/p/print", OPERATOR, body='json:{"name": "CUBE.GCO"}'),
     ep("POST", "/printer/sd/p/upload", OPERATOR, body='jsonf:{{"job": {stored}}}'),
     ep("POST", "/printer/sd/p/delete", OPERATOR, body='json:{"name": "CUBE.GCO"}'),
+    ep("GET", "/printer/analysis/p/{stored}", VIEWER),
+    ep("POST", "/printer/analysis/p/{stored}/again", OPERATOR),
+    ep("GET", "/printer/thumbnail/p/{stored}/16x16.png", VIEWER),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
     ep("GET", "/printer/api/p?a=listModelGroups", VIEWER),
     ep("POST", "/printer/api/p?a=listModelGroups", VIEWER),
@@ -231,7 +246,11 @@ def world(db: None, storage: Path, tmp_path: Path, django_user_model: type) -> W
     for name in SESSIONS:
         users[name] = users["operator"]
     source = tmp_path / "cube.gcode"
-    source.write_text("G28\nG1 X1\n")
+    picture = base64.b64encode(png_encode(16, 16, bytes(4 * 16 * 16))).decode()
+    thumbnail = (
+        f"; thumbnail begin 16x16 {len(picture)}\n; {picture}\n; thumbnail end\n"
+    )
+    source.write_text(thumbnail + "G28\nG1 X1\n")
     return World(p, q, users, keys, source)
 
 
@@ -239,6 +258,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
     """What the call needs, made for this caller (in its savepoint)."""
     p = world.p
     stored = enqueue_job(p, world.source, name="cube.gcode", queue=False)
+    analysing.run(stored.analysis_id)  # as the Celery worker would (its thumbnail)
     done = enqueue_job(p, world.source, name="done.gcode", queue=False)
     Job.objects.filter(pk=done.pk).update(state=Job.State.COMPLETED)
     if state in ("printing", "paused"):

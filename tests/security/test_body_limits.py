@@ -73,7 +73,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
         PRINTHOST_MAX_JOB_BYTES=str(JOB_CAP),
         PRINTHOST_UPLOADS_PER_CALLER="2",
     )
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.add_simulated_printer("p1")
     key = host.add_user("op", "operator", printer="p1")
     with host.running():
@@ -413,7 +413,7 @@ def test_uploads_in_flight_are_capped_per_user(served: Served) -> None:
 def test_an_upload_bigger_than_the_free_space_gets_507(tmp_path: Path) -> None:
     host = Host(tmp_path)
     host.env["PRINTHOST_UPLOAD_SPARE_BYTES"] = str(10**18)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     key = host.add_user("op", superuser=True)
     with host.running():
         answer = exchange(

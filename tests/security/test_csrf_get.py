@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def host(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Host]:
     host = Host(tmp_path_factory.mktemp("csrf"))
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.add_simulated_printer("mk3")
     host.env["TEST_OPERATOR_KEY"] = host.add_user("op", role="operator")
     with host.running():

@@ -28,7 +28,7 @@ USER_LIMIT, ADDRESS_LIMIT = 5, 20
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Host]:
     host = Host(tmp_path_factory.mktemp("logins"))
-    host.manage("migrate", "--noinput")
+    host.migrate()
     for name in ("ann", "bea", "cal"):
         host.add_user(name)
     host.add_user("root", superuser=True)

@@ -31,7 +31,7 @@ def test_esp700_paths_outside_the_storage_are_refused_over_http(
     tmp_path: Path,
 ) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     record = host.add_simulated_printer("mk3")
     key = host.add_user("op", role="operator")
     probe = tmp_path / "probe.gcode"

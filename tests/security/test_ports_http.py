@@ -18,7 +18,7 @@ pytestmark = pytest.mark.slow
 
 def test_port_urls_are_refused_over_http_and_never_opened(tmp_path: Path) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.add_simulated_printer("mk3")
     spied = tmp_path / "spied.txt"
     link = tmp_path / "mk3.tty"

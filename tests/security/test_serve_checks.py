@@ -136,7 +136,7 @@ def test_loopback_debug_or_a_real_key_still_serve(tmp_path: Path) -> None:
 
 def test_keys_in_query_strings_are_redacted_in_the_access_log(tmp_path: Path) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     key = host.add_user("op", superuser=True)
     with host.running():
         for name in ("apikey", "token"):

@@ -29,7 +29,7 @@ CLOSE_WITHIN = 40.0
 @pytest.fixture(scope="module")
 def host(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Host]:
     host = Host(tmp_path_factory.mktemp("wssessions"))
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.add_simulated_printer("mk3")
     for name in ("ann", "bob", "cy"):
         host.add_user(name, role="viewer")
