@@ -7,6 +7,7 @@ the JSON API with `fetch` (the same code path slicers and hosts use), never here
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from django.contrib.auth.decorators import login_required
@@ -72,6 +73,64 @@ def forbidden(request: HttpRequest, message: str) -> HttpResponse:
     return render(request, "403.html", {"message": message}, status=403)
 
 
+def pick_thumbnail(job: dict[str, Any] | None, smallest: int) -> str:
+    """The address of the smallest thumbnail at least *smallest* px wide (else the
+    largest), or ""; the same choice as `pickThumbnail` in api.js."""
+    pictures = ((job or {}).get("analysis") or {}).get("thumbnails") or []
+    if not pictures:
+        return ""
+    wide = [p for p in pictures if p["width"] >= smallest]
+    chosen = min(wide, key=lambda p: p["width"]) if wide else pictures[0]
+    return chosen["url"]
+
+
+def metres(millimetres: float | None) -> str:
+    return "—" if millimetres is None else f"{millimetres / 1000:.2f} m"
+
+
+def job_view(job: dict[str, Any] | None) -> dict[str, Any]:
+    """A job's progress as the pages show it first (api.js `showJob` keeps it live)."""
+    if not job:
+        return {"percent": 0, "elapsed": clock(None), "remaining": clock(None),
+                "ends": "—", "layer": "—", "filament": "—", "thumbnail": ""}  # fmt: skip
+    ends = job.get("ends_at")
+    layer = job.get("layer")
+    return {
+        "percent": job["time_progress"]
+        if job.get("time_progress") is not None
+        else job["progress"],
+        "elapsed": clock(job["elapsed"]),
+        "remaining": clock(job["eta"]),
+        "ends": datetime.fromisoformat(ends).astimezone().strftime("%H:%M")
+        if ends
+        else "—",
+        "layer": f"{layer} / {job['layers']}" if layer else "—",
+        "filament": metres(job.get("filament_used")),
+        "thumbnail": pick_thumbnail(job, 96),
+    }
+
+
+def analysis_figures(analysis: dict[str, Any]) -> dict[str, str]:
+    """The job page's analysis panel, in words."""
+    box = analysis.get("bbox")
+    size = "—"
+    if box:
+        (x0, y0, z0), (x1, y1, z1) = box
+        size = f"{x1 - x0:.1f} \u00d7 {y1 - y0:.1f} \u00d7 {z1 - z0:.1f} mm"
+    weight = analysis.get("filament_weight_g")
+    filament = metres(analysis.get("filament_total"))
+    if weight:
+        filament += f", {weight:.1f} g"
+    slicer_time = analysis.get("slicer_estimated_seconds")
+    return {
+        "time": clock(analysis.get("estimated_seconds")),
+        "heating": clock(analysis.get("heating_seconds")),
+        "slicer_time": clock(slicer_time) if slicer_time else "",
+        "filament": filament,
+        "size": size,
+    }
+
+
 def card(printer: Printer, caller: Caller) -> dict[str, Any]:
     """What a printer card or the printer page shows first."""
     state = printer_state(printer)
@@ -81,8 +140,7 @@ def card(printer: Printer, caller: Caller) -> dict[str, Any]:
         "state": state,
         "state_label": state_label(printer.state),
         "job": job,
-        "elapsed": clock(job["elapsed"] if job else None),
-        "remaining": clock(job["eta"] if job else None),
+        "view": job_view(job),
         "temps": temps_text(printer.temperatures),
         "operator": caller.can(printer, Role.OPERATOR),
         "admin": caller.can(printer, Role.ADMIN),
@@ -111,13 +169,15 @@ def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
     newest = ResponseLine.objects.filter(printer=printer).aggregate(m=Max("seq"))["m"]
     queue = list(
         Job.objects.filter(printer=printer)
-        .select_related("printer")
+        .select_related("printer", "analysis")
+        .defer("analysis__result")
         .exclude(state__in=FINISHED_STATES)
         .order_by("position", "id")
     )
     finished = list(
         Job.objects.filter(printer=printer, state__in=FINISHED_STATES)
-        .select_related("printer")
+        .select_related("printer", "analysis")
+        .defer("analysis__result")
         .order_by("-id")[:FINISHED_SHOWN]
     )
     context = card(printer, caller) | {
@@ -134,21 +194,27 @@ def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
 def job_page(request: HttpRequest, job_id: int) -> HttpResponse:
     """One job: file facts, progress, and every run of the same file on that printer."""
     job = get_object_or_404(
-        Job.objects.select_related("printer", "uploaded_by"), pk=job_id
+        Job.objects.select_related("printer", "uploaded_by", "analysis").defer(
+            "analysis__result"
+        ),
+        pk=job_id,
     )
     caller = caller_of_page(request)
     if not caller.can(job.printer, Role.VIEWER):
         return forbidden(request, f"viewer role needed on printer {job.printer.slug!r}")
     runs = Job.objects.filter(printer=job.printer, sha256=job.sha256).order_by("-id")
+    data = job.as_dict()
+    analysis = data["analysis"]
     return render(
         request,
         "job.html",
         {
             "job": job,
-            "data": job.as_dict(),
+            "data": data,
             "runs": runs,
-            "elapsed": clock(job.elapsed_seconds()),
-            "remaining": clock(job.remaining_seconds()),
+            "view": job_view(data),
+            "analysis": analysis,
+            "figures": analysis_figures(analysis) if analysis else {},
         },
     )
 

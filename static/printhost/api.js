@@ -107,8 +107,38 @@ export function showJob(root, job) {
   set("job-state", job ? job.state : "");
   set("elapsed", clock(job ? job.elapsed : null));
   set("remaining", clock(job ? job.eta : null));
+  const ends = job?.ends_at ? new Date(job.ends_at) : null;
+  set("ends-at", ends ? ends.toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" }) : "—");
+  set("layer", job?.layer ? `${job.layer} / ${job.layers}` : "—");
+  set("filament", job?.filament_used != null ? `${(job.filament_used / 1000).toFixed(2)} m` : "—");
   const bar = root.querySelector("[data-test=progress]");
-  if (bar) bar.value = job ? job.progress : 0;
+  if (bar) bar.value = job ? (job.time_progress ?? job.progress) : 0;
+  const picture = root.querySelector("[data-test=thumbnail]");
+  if (picture) {
+    const src = pickThumbnail(job, 96);
+    if (src && picture.getAttribute("src") !== src) picture.src = src;
+    picture.hidden = !src;
+  }
+}
+
+/** The smallest thumbnail at least `smallest` px wide (else the largest), or "". */
+export function pickThumbnail(job, smallest) {
+  const pictures = job?.analysis?.thumbnails || [];
+  if (!pictures.length) return "";
+  const wide = pictures.filter((p) => p.width >= smallest).sort((a, b) => a.width - b.width);
+  return (wide[0] || pictures[0]).url;
+}
+
+/** A job's analysis in a few words for a queue row. */
+export function analysisText(job) {
+  const analysis = job.analysis;
+  if (!analysis) return "";
+  if (analysis.state === "failed") return "analysis failed";
+  if (analysis.state !== "done") return "analysing…";
+  const parts = [`≈ ${clock(analysis.estimated_seconds)}`];
+  if (analysis.filament_total) parts.push(`${(analysis.filament_total / 1000).toFixed(2)} m`);
+  if (analysis.layers) parts.push(`${analysis.layers} layers`);
+  return parts.join(" · ");
 }
 
 /** Show a printer state in a badge. */

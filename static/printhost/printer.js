@@ -1,5 +1,7 @@
 // The printer page: live state, terminal, queue and upload, chart, controls, connection.
-import { api, clearError, csrfToken, errorOf, liveFeed, showError, showJob, showState, tempsText } from "./api.js";
+import {
+  analysisText, api, clearError, csrfToken, errorOf, liveFeed, pickThumbnail, showError, showJob, showState, tempsText,
+} from "./api.js";
 import { TempChart } from "./chart.js";
 import { answerPrompt, showPrompt } from "./prompt.js";
 import { sdCardPanel } from "./sdcard.js";
@@ -130,8 +132,28 @@ function renderQueue() {
     const state = document.createElement("span");
     state.className = "muted";
     state.dataset.test = "queue-job-state";
-    state.textContent = job.state === "printing" ? `printing ${job.progress.toFixed(1)} %` : job.state;
+    const percent = job.time_progress ?? job.progress;
+    state.textContent = job.state === "printing" ? `printing ${percent.toFixed(1)} %` : job.state;
+    const src = pickThumbnail(job, 48);
+    if (src) {
+      const picture = document.createElement("img");
+      picture.className = "thumb small";
+      picture.dataset.test = "queue-job-thumbnail";
+      picture.src = src;
+      picture.alt = "";
+      picture.width = picture.height = 44;
+      picture.loading = "lazy";
+      li.append(picture);
+    }
     li.append(link, state);
+    const figures = analysisText(job);
+    if (figures) {
+      const facts = document.createElement("span");
+      facts.className = "muted";
+      facts.dataset.test = "queue-job-analysis";
+      facts.textContent = figures;
+      li.append(facts);
+    }
     if (job.kind && job.kind !== "print") {
       const kind = document.createElement("span");
       kind.className = "badge";

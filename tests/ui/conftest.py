@@ -130,13 +130,17 @@ class LiveHost:
 
 
 def start_live_host(
-    folder: Path, printers: dict[str, str], jobs: dict[str, str] | None = None
+    folder: Path,
+    printers: dict[str, str],
+    jobs: dict[str, str] | None = None,
+    *,
+    celery: bool = False,
 ) -> Iterator[LiveHost]:
     """Set up *printers* (slug -> simulator arguments; "" = no simulator, offline),
     an operator and a viewer on the first printer, a user with no role, queue
     *jobs* (slug -> G-code text), and run it until the generator is closed."""
     host = Host(folder)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     records: dict[str, Path] = {}
     for slug, sim_args in printers.items():
         if sim_args:
@@ -150,14 +154,14 @@ def start_live_host(
                 f"name={slug.upper()!r}, slug={slug!r}, port='/nonexistent')"
             )
     first = next(iter(printers))
-    host.add_user(OPERATOR, "operator")
-    host.add_user(VIEWER, "viewer", printer=first)
-    host.add_user(STRANGER)
+    host.add_users(
+        [(OPERATOR, "operator", ""), (VIEWER, "viewer", first), (STRANGER, "", "")]
+    )
     for slug, text in (jobs or {}).items():
         source = folder / f"{slug}-first.gcode"
         source.write_text(text)
         host.manage("add_job", slug, str(source), "--name", "first.gcode")
-    with host.running():
+    with host.running(celery=celery):
         yield LiveHost(host, records, folder)
 
 
