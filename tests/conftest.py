@@ -65,6 +65,7 @@ def storage(settings: object, tmp_path: Path) -> Path:
     settings.DATA_DIR = tmp_path  # type: ignore[attr-defined]
     settings.PRINTHOST_POLL_SECONDS = 0.02  # type: ignore[attr-defined]
     settings.PRINTHOST_JOURNAL_DIR = tmp_path / "journal"  # type: ignore[attr-defined]
+    settings.ANALYSIS_DIR = tmp_path / "analysis"  # type: ignore[attr-defined]
     return tmp_path / "jobs"
 
 

@@ -9,11 +9,13 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import shutil
 import signal
 import socket
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -77,6 +79,23 @@ def redis_url(db: int = 0) -> str:
     return url
 
 
+_TEMPLATE: list[Path] = []
+
+
+def _migrated_sqlite() -> Path:
+    """A SQLite database migrated by `manage.py migrate`, made once per session."""
+    if not _TEMPLATE:
+        folder = Path(tempfile.mkdtemp(prefix="printhost-migrated-"))
+        env = {**os.environ, "PRINTHOST_DATA_DIR": str(folder)}
+        env.pop("DATABASE_URL", None)
+        subprocess.run(
+            [sys.executable, "manage.py", "migrate", "--noinput"], cwd=ROOT, env=env,
+            capture_output=True, text=True, check=True, timeout=120,
+        )  # fmt: skip
+        _TEMPLATE.append(folder / "printhost.sqlite3")
+    return _TEMPLATE[0]
+
+
 class Host:
     """A printhost installation in a folder: its own database, jobs and simulators."""
 
@@ -103,6 +122,16 @@ class Host:
             [sys.executable, "manage.py", *args], cwd=ROOT, env=self.env,
             capture_output=True, text=True, check=check, timeout=120,
         )  # fmt: skip
+
+    def migrate(self) -> None:
+        """The database, migrated. A SQLite host copies a database migrated once per
+        test session (`migrate` costs two seconds a host); PostgreSQL migrates.
+        The test of `make run`'s own steps runs `manage("migrate")` itself."""
+        database = self.folder / "printhost.sqlite3"
+        if self.database_url or database.exists():
+            self.manage("migrate", "--noinput")
+            return
+        shutil.copyfile(_migrated_sqlite(), database)
 
     def shell(self, code: str) -> str:
         return self.manage("shell", "-c", code).stdout.strip()
@@ -143,28 +172,48 @@ class Host:
         Returns a fresh API key of theirs (bound to *key_printer* if given); the
         password is the user name.
         """
+        return self.add_users([(username, role, printer)], superuser, key_printer)[0]
+
+    def add_users(
+        self,
+        users: list[tuple[str, str, str]],
+        superuser: bool = False,
+        key_printer: str = "",
+    ) -> list[str]:
+        """Several users (name, role, printer) in one `manage.py shell` (each shell
+        costs a Django start-up); their fresh API keys in order."""
         code = f"""
 from django.contrib.auth import get_user_model
 from printers.models import Printer
 from printhost.access import issue_key
 from printhost.models import PrinterRole, Role
 User = get_user_model()
-user = User.objects.create_user({username!r}, password={username!r},
-    is_superuser={superuser}, is_staff={superuser})
-role, printer, bound = {role!r}, {printer!r}, {key_printer!r}
-if role:
-    PrinterRole.objects.create(user=user, role=Role[role.upper()],
-        printer=Printer.objects.get(slug=printer) if printer else None)
-key, raw = issue_key(user, "test", printer=Printer.objects.get(slug=bound) if bound else None)
-print(raw)
+bound = {key_printer!r}
+for username, role, printer in {users!r}:
+    user = User.objects.create_user(username, password=username,
+        is_superuser={superuser}, is_staff={superuser})
+    if role:
+        PrinterRole.objects.create(user=user, role=Role[role.upper()],
+            printer=Printer.objects.get(slug=printer) if printer else None)
+    key, raw = issue_key(user, "test", printer=Printer.objects.get(slug=bound) if bound else None)
+    print("key:", raw)
 """
-        return self.shell(code).splitlines()[-1]
+        lines = self.shell(code).splitlines()
+        return [line[5:] for line in lines if line.startswith("key: ")]
 
     @contextmanager
-    def running(self, *extra: str, web: bool = True) -> Iterator[subprocess.Popen]:
-        """runhost (daphne, simulators, workers) until the block ends; HTTP is up."""
+    def running(
+        self, *extra: str, web: bool = True, celery: bool = False
+    ) -> Iterator[subprocess.Popen]:
+        """runhost (daphne, simulators, workers) until the block ends; HTTP is up.
+
+        Its Celery worker and beat run only when *celery* is set: most tests do not
+        need file analysis, and two more processes per host slow a 2-core machine.
+        """
         self.port = free_port()
         args = ["--port", str(self.port)] if web else ["--no-web"]
+        if not celery:
+            args.append("--no-celery")
         log = (self.folder / "runhost.log").open("wb")
         process = subprocess.Popen(
             [sys.executable, "manage.py", "runhost", *args, *extra], cwd=ROOT,

@@ -30,7 +30,7 @@ def host(request: pytest.FixtureRequest, tmp_path: Path) -> Host:
     host = Host(tmp_path, redis=redis_url(db=3) if request.param == "redis" else "")
     # Channel names of parallel runs sharing one Redis must not meet.
     host.env["PRINTHOST_CHANNEL_PREFIX"] = f"printhost-test-{uuid.uuid4().hex[:8]}"
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.add_simulated_printer("p1")
     return host
 

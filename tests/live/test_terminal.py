@@ -57,7 +57,7 @@ def test_the_terminal_streams_output_takes_commands_and_refuses_bad_keys(
     tmp_path: Path,
 ) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     port = free_port()
     record = host.add_simulated_printer("p1", terminal_port=port)
     host.add_simulated_printer("p2")

@@ -60,7 +60,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
         PRINTHOST_TERMINAL_MAX_PER_ADDRESS=str(MAX_PER_ADDRESS),
         PRINTHOST_TERMINAL_LOGIN_SECONDS="2",
     )
-    host.manage("migrate", "--noinput")
+    host.migrate()
     port = free_port()
     host.add_simulated_printer("p1", terminal_port=port)
     operator = host.add_user("op", "operator", printer="p1")

@@ -43,7 +43,7 @@ def _upload(client: httpx.Client, name: str, content: bytes) -> httpx.Response:
 
 def test_uploads_are_refused_with_the_line_or_print_to_the_end(tmp_path: Path) -> None:
     host = Host(tmp_path)
-    host.manage("migrate", "--noinput")
+    host.migrate()
     record = host.add_simulated_printer("mk3")
     key = host.add_user("op", role="operator")
     with host.running():

@@ -50,7 +50,7 @@ def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
     sim = sim_factory("marlin", "--time-scale", "0", "--baud", "250000")
     host = Host(tmp_path)
     host.env["PRINTHOST_LEASE_SECONDS"] = "2"
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; Printer.objects.create(name='P0', "
         f"slug='p0', port={str(sim.link)!r}, baud=250000, temperature_interval=0)"

@@ -21,7 +21,7 @@ def _host_with_job(tmp_path: Path, port: str, lines: int) -> tuple[Host, str]:
     host = Host(tmp_path)
     if "://" in port:  # a network port is opened only to a listed host
         host.env["PRINTHOST_PORT_HOSTS"] = port.split("://", 1)[1]
-    host.manage("migrate", "--noinput")
+    host.migrate()
     host.shell(
         "from printers.models import Printer; Printer.objects.create(name='P0', "
         f"slug='p0', port={port!r}, baud=250000, temperature_interval=0)"

@@ -33,6 +33,15 @@ def stored(printer: Printer, tmp_path: Path, text: str, name: str) -> Job:
     return enqueue_job(printer, source, name=name, queue=False)
 
 
+def card_folder(tmp_path: Path, **files: str) -> Path:
+    """A folder the simulator uses as its SD card, holding *files* (name=text)."""
+    folder = tmp_path / "card"
+    folder.mkdir()
+    for name, text in files.items():
+        (folder / name.replace("_", ".")).write_text(text)
+    return folder
+
+
 def card(sim: Sim) -> dict[str, object]:
     return json.loads(sim.control("sd").removeprefix("ok "))
 
@@ -62,8 +71,7 @@ def test_copy_to_the_card_then_print_from_it_runs_every_line_once(
     sim_factory, make_printer, tmp_path
 ):
     # A user's defaults: temperature polling on. No M105 may land in the file.
-    sd_dir = tmp_path / "card"
-    sd_dir.mkdir()
+    sd_dir = card_folder(tmp_path)
     sim = sim_factory("marlin", "--time-scale", "0", "--sd-dir", str(sd_dir))
     printer = make_printer(port=str(sim.link), auto_start=True, **USER_DEFAULTS)
     text = segments(300)
@@ -93,8 +101,7 @@ def test_copy_to_the_card_then_print_from_it_runs_every_line_once(
 def test_copy_to_the_card_survives_line_noise_with_every_line_exact(
     sim_factory, make_printer, tmp_path
 ):
-    sd_dir = tmp_path / "card"
-    sd_dir.mkdir()
+    sd_dir = card_folder(tmp_path)
     sim = sim_factory(
         "marlin", "--time-scale", "0", "--sd-dir", str(sd_dir),
         "--corrupt", "0.03", "--seed", "7",
@@ -131,9 +138,7 @@ def test_copy_to_the_card_survives_line_noise_with_every_line_exact(
 def test_print_from_the_card_shows_progress_and_pauses_resumes_and_aborts(
     sim_factory, make_printer, tmp_path
 ):
-    sd_dir = tmp_path / "card"
-    sd_dir.mkdir()
-    (sd_dir / "LONG.GCO").write_text(segments(400))
+    sd_dir = card_folder(tmp_path, LONG_GCO=segments(400))
     sim = sim_factory("marlin", "--time-scale", "1", "--sd-dir", str(sd_dir))
     printer = make_printer(port=str(sim.link), **USER_DEFAULTS)
     job = queue_sd_print(printer, "long.gco")
@@ -185,10 +190,7 @@ def test_a_file_the_printer_cannot_open_fails_the_job_with_its_words(
 def test_the_card_is_listed_at_connect_and_a_deleted_file_leaves_the_list(
     sim_factory, make_printer, tmp_path
 ):
-    sd_dir = tmp_path / "card"
-    sd_dir.mkdir()
-    (sd_dir / "CUBE.GCO").write_text("G1 X1\n")
-    (sd_dir / "BOAT.GCO").write_text("G1 X2\nG1 X3\n")
+    sd_dir = card_folder(tmp_path, CUBE_GCO="G1 X1\n", BOAT_GCO="G1 X2\nG1 X3\n")
     sim = sim_factory("marlin", "--time-scale", "0", "--sd-dir", str(sd_dir))
     printer = make_printer(port=str(sim.link))
     worker = running(printer)
@@ -229,9 +231,7 @@ def test_a_copy_to_a_printer_without_a_card_runs_none_of_the_files_lines(
 def test_a_print_stopped_on_the_printers_display_ends_the_job(
     sim_factory, make_printer, tmp_path
 ):
-    sd_dir = tmp_path / "card"
-    sd_dir.mkdir()
-    (sd_dir / "LONG.GCO").write_text(segments(400))
+    sd_dir = card_folder(tmp_path, LONG_GCO=segments(400))
     sim = sim_factory("marlin", "--time-scale", "1", "--sd-dir", str(sd_dir))
     printer = make_printer(port=str(sim.link), **USER_DEFAULTS)
     job = queue_sd_print(printer, "LONG.GCO")

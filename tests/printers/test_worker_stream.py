@@ -17,7 +17,7 @@ pytestmark = [pytest.mark.django_db, pytest.mark.slow]
 def test_marlin_job_survives_corrupted_lines_without_loss_or_repeat(
     sim_factory, make_printer, make_job, corrupt
 ):
-    text = segments(5000)
+    text = segments(2500)  # 25 to 125 corrupted lines, each resent
     sim = sim_factory(
         "marlin", "--baud", "115200", "--time-scale", "0", "--corrupt", corrupt,
         "--seed", "7",
@@ -29,9 +29,9 @@ def test_marlin_job_survives_corrupted_lines_without_loss_or_repeat(
     job = run_job(worker, job, timeout=600)
 
     assert job.state == Job.State.COMPLETED, job.message
-    assert job.lines_acked == job.line_count == 5003
+    assert job.lines_acked == job.line_count == 2503
     assert_streamed_exactly(sim, text)
-    assert worker.protocol.resends > 0
+    assert worker.protocol.resends > 10
 
 
 def test_grbl_job_streams_every_line_once_in_order(sim_factory, make_printer, make_job):
