@@ -1,0 +1,49 @@
+"""One analyser on one file, in its own process (`bench/analysis.py` runs this).
+
+    python -m bench.analysis_run printhost|reference FILE [REPEAT]
+
+Prints one JSON line: seconds (all repeats), peak RSS in bytes, and the figures.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+
+from bench import reference_analyser
+from jobs.analysis.analyser import Analyser
+
+
+def printhost(path: str) -> dict[str, object]:
+    analyser = Analyser()
+    with Path(path).open("rb") as handle:
+        while chunk := handle.read(1 << 20):
+            analyser.feed(chunk)
+    found = analyser.finish()
+    return {
+        "motion_seconds": round(found.motion_seconds, 1),
+        "heating_seconds": round(found.heating_seconds, 1),
+        "filament_mm": round(found.filament_total, 1),
+        "layers": len(found.layers),
+        "thumbnails": len(analyser.pictures),
+    }
+
+
+def main() -> int:
+    which, path = sys.argv[1], sys.argv[2]
+    repeat = int(sys.argv[3]) if len(sys.argv) > 3 else 1
+    analyse = printhost if which == "printhost" else reference_analyser.analyse
+    started = time.perf_counter()
+    for _ in range(repeat):
+        figures = analyse(path)
+    seconds = time.perf_counter() - started
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"seconds": seconds, "rss": rss, "figures": figures}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
