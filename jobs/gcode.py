@@ -12,6 +12,12 @@ only; GRBL also refuses its realtime characters `?`, `!`, `~` inside a line):
   become `?`. A message is for people; a print must not stop over a glyph;
 - any other character outside printable ASCII (`G1 X1Ü`, a DEL byte) refuses the
   file at upload, naming the line: its meaning cannot be guessed.
+
+A stored file is text G-code or Prusa's binary G-code (`.bgcode`, jobs/bgcode.py):
+`file_lines` reads either as plain G-code lines, the binary one block by block, so
+the check, the stream and the analysis never see the difference. A line's offset is
+a position in the stored file (progress is bytes of the stored file); in a binary
+file it is interpolated inside the block that holds the line.
 """
 
 from __future__ import annotations
@@ -22,11 +28,13 @@ import unicodedata
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode
 from printers.protocol.checksum import clean_line
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
     from pathlib import Path
+    from typing import Any, BinaryIO
 
 _CHUNK = 1 << 20
 
@@ -126,17 +134,58 @@ def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
 
     Streams the file; never holds it whole. *start_index* skips commands before it.
     """
-    offset = 0
     index = 0
+    for number, (raw, offset) in enumerate(file_lines(path), start=1):
+        text = command_of(raw)
+        if not text:
+            continue
+        if index >= start_index:
+            yield Command(index, text, offset, number)
+        index += 1
+
+
+def file_lines(
+    path: Path, *, digest: Any = None, name: str = ""
+) -> Iterator[tuple[bytes, int]]:
+    """The lines of a stored file as plain G-code, each with the offset in the file
+    where it ends. *digest* (hashlib) is fed every byte of the stored file.
+
+    A broken binary file raises BadGcode (naming *name*) where the break is found.
+    """
     with path.open("rb") as handle:
-        for number, raw in enumerate(handle, start=1):
+        binary = is_bgcode(handle.read(4))
+        handle.seek(0)
+        if binary:
+            try:
+                yield from _bgcode_lines(handle, name or path.name, digest)
+            except BadBgcode as error:
+                raise BadGcode(str(error)) from None
+            return
+        offset = 0
+        for raw in handle:
             offset += len(raw)
-            text = command_of(raw)
-            if not text:
-                continue
-            if index >= start_index:
-                yield Command(index, text, offset, number)
-            index += 1
+            if digest is not None:
+                digest.update(raw)
+            yield raw, offset
+
+
+def _bgcode_lines(
+    handle: BinaryIO, name: str, digest: Any
+) -> Iterator[tuple[bytes, int]]:
+    reader = BgcodeReader(handle, name=name, digest=digest)
+    tail = b""  # a line a block cut (slicers never do; a hand-made file may)
+    for block in reader.blocks():
+        if block.type != BlockType.GCODE:
+            continue
+        text = tail + block.data
+        span, total, done = block.end - block.start, max(1, len(text)), 0
+        lines = text.splitlines(keepends=True)
+        tail = lines.pop() if lines and not lines[-1].endswith(b"\n") else b""
+        for raw in lines:
+            done += len(raw)
+            yield raw, block.start + span * done // total
+    if tail:
+        yield tail, reader.offset
 
 
 def inspect_file(
@@ -146,7 +195,8 @@ def inspect_file(
 
     Errors name the file *name* (the name the user gave it), else the path's name.
 
-    1. Read it in chunks, hashing as we go (SHA-256).
+    1. Read it in chunks, hashing as we go (SHA-256); a binary G-code file is
+       decoded block by block, each block's CRC32 checked.
     2. Reject NUL bytes and non-ASCII control bytes: a binary file.
     3. Count commands (as `command_of` gives them to the firmware); reject one the
        protocol would refuse (`command_problem`, GRBL's rules when *grbl*) or one
@@ -157,30 +207,26 @@ def inspect_file(
     if not path.is_file():
         raise BadGcode(f"{name}: no such file")
     digest = hashlib.sha256()
-    size = commands = longest = 0
-    number = 0
-    with path.open("rb") as handle:
-        for raw in handle:
-            number += 1
-            size += len(raw)
-            digest.update(raw)
-            _check_text(raw, number, name)
-            text = command_of(raw)
-            if not text:
-                continue
-            problem = command_problem(text, grbl=grbl)
-            if problem:
-                raise BadGcode(f"{name} line {number}: {problem}: {text[:40]!r}")
-            commands += 1
-            longest = max(longest, len(text))
-            if max_command_length and len(text) > max_command_length:
-                raise BadGcode(
-                    f"{name} line {number}: command is {len(text)} characters, "
-                    f"the firmware takes at most {max_command_length}: {text[:40]!r}..."
-                )
+    commands = longest = 0
+    lines = file_lines(path, digest=digest, name=name)
+    for number, (raw, _) in enumerate(lines, start=1):
+        _check_text(raw, number, name)
+        text = command_of(raw)
+        if not text:
+            continue
+        problem = command_problem(text, grbl=grbl)
+        if problem:
+            raise BadGcode(f"{name} line {number}: {problem}: {text[:40]!r}")
+        commands += 1
+        longest = max(longest, len(text))
+        if max_command_length and len(text) > max_command_length:
+            raise BadGcode(
+                f"{name} line {number}: command is {len(text)} characters, "
+                f"the firmware takes at most {max_command_length}: {text[:40]!r}..."
+            )
     if commands == 0:
         raise BadGcode(f"{name}: the file holds no G-code command")
-    return FileFacts(size, commands, digest.hexdigest(), longest)
+    return FileFacts(path.stat().st_size, commands, digest.hexdigest(), longest)
 
 
 #: Control bytes that never appear in G-code text (tab, newlines, form feed do).

@@ -113,7 +113,7 @@ def queue_sd_upload(
     """Queue a job that copies *source*'s stored file onto the card (M28 ... M29).
 
     Without *sd_name*, an 8.3 name is made from the job's name that no listed file
-    and no waiting upload has. With *print_after*, a print of it from the card is
+    and no waiting upload has (a `.bgcode` job's copy is plain G-code: `.GCO`). With *print_after*, a print of it from the card is
     queued when the copy is complete (never after a failed or aborted copy).
     """
     require_card(printer)
@@ -136,7 +136,10 @@ def queue_sd_upload(
                 "to 3): the printer's card takes only those"
             )
     else:
-        wanted = short_name(source.name, taken)
+        # The card gets plain G-code, whatever the stored file's form.
+        stem, dot, extension = source.name.rpartition(".")
+        plain = f"{stem}.gcode" if dot and extension.lower() == "bgcode" else source.name
+        wanted = short_name(plain, taken)
     return Job.objects.create(
         printer=printer,
         kind=Job.Kind.SD_UPLOAD,

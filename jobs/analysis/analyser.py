@@ -173,6 +173,10 @@ class Analyser:
     def pictures(self) -> list[Thumbnail]:
         return self.thumbs.pictures
 
+    def add_picture(self, kind: str, data: bytes) -> None:
+        """A thumbnail stored apart from the G-code (a binary G-code block)."""
+        self.thumbs.add(kind, data)
+
     def _filament_facts(self, result: Analysis) -> None:
         count = max(self._filament, default=-1) + 1
         result.filament_mm = [

@@ -15,7 +15,11 @@ from typing import Any
 
 @dataclass(slots=True)
 class Layer:
-    """One layer: its Z, the command and byte offset it starts at, and when (s)."""
+    """One layer: its Z, the command and byte offset it starts at, and when (s).
+
+    The offset is in the G-code text the analyser read: for a binary G-code file,
+    its decoded text (the command index is the same either way).
+    """
 
     z: float
     line: int

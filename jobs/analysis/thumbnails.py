@@ -90,6 +90,17 @@ class ThumbnailReader:
         except (binascii.Error, ValueError):
             self.notes.append(f"the {label} has broken base64 and was skipped")
             return
+        self._take(kind, raw, label)
+
+    def add(self, kind: str, raw: bytes) -> None:
+        """A picture from outside the comments (*kind* PNG, JPG or QOI), checked."""
+        self._total += len(raw)
+        if self._total > MAX_BYTES:
+            self.notes.append("thumbnails larger than 8 MB in all were skipped")
+            return
+        self._take(kind, raw, f"{kind} thumbnail")
+
+    def _take(self, kind: str, raw: bytes, label: str) -> None:
         try:
             self.pictures.append(picture(kind, raw))
         except BadPicture as error:

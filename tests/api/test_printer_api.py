@@ -16,6 +16,7 @@ from jobs.models import Job
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printhost.access import issue_key
 from printhost.models import AuditEntry, PrinterRole, Role
+from tests.slices import PRUSA, to_binary
 
 if TYPE_CHECKING:
     pass
@@ -181,6 +182,23 @@ def test_job_upload_of_a_binary_file_is_400_and_stores_nothing(keys, printer) ->
     assert body["error"].startswith("part.gcode line 2: ")
     assert "binary file" in body["error"]
     assert not Job.objects.exists()
+
+
+def test_job_upload_of_a_broken_binary_gcode_is_400_and_stores_nothing(
+    keys, printer, tmp_path
+) -> None:
+    good = to_binary(PRUSA, tmp_path / "box.bgcode").read_bytes()
+    broken = good[: len(good) // 2]  # cut off, as a dropped transfer leaves it
+    data = {"a": "upload", "filename": SimpleUploadedFile("box.bgcode", broken)}
+    status, body = call("post", "/printer/job/mk3", keys(), data=data)
+    assert status == 400
+    assert body["error"].startswith("box.bgcode: cut off in block ")
+    assert "truncated" in body["error"]
+    assert not Job.objects.exists()
+    data = {"a": "upload", "filename": SimpleUploadedFile("box.bgcode", good)}
+    status, body = call("post", "/printer/job/mk3", keys(), data=data)
+    assert status == 200, body
+    assert Job.objects.get().size_bytes == len(good)
 
 
 def test_job_upload_over_the_limit_is_413(keys, printer, settings) -> None:
