@@ -220,9 +220,27 @@ def _analyse(
     stride = 256
     while commands // stride > MAX_MARKS:
         stride *= 2
-    analyser = Analyser(
-        limits, firmware=analysis.firmware, materials=materials, stride=stride
-    )
+    folder = thumbnail_dir(analysis.sha256)
+    folder.mkdir(parents=True, exist_ok=True)
+    drawing = folder / f".toolpath-{analysis.pk}-{os.getpid()}.part"
+    try:
+        with drawing.open("wb") as sink:
+            analyser = Analyser(
+                limits, firmware=analysis.firmware, materials=materials,
+                stride=stride, toolpath=sink,
+            )  # fmt: skip
+            _read(analysis, path, worker, analyser)
+            found = analyser.finish()
+        drawing.replace(toolpath_path(analysis.sha256, found.kind))
+    finally:
+        drawing.unlink(missing_ok=True)
+    if chosen.get("note"):
+        found.notes.append(chosen["note"])
+    return found, analyser.pictures
+
+
+def _read(analysis: FileAnalysis, path: Path, worker: str, analyser: Analyser) -> None:
+    """Feed the stored file to *analyser*, checking its SHA-256, with heartbeats."""
     digest = hashlib.sha256()
     beat = time.monotonic()
     with path.open("rb") as handle:
@@ -240,10 +258,6 @@ def _analyse(
                 _heartbeat(analysis.pk, worker, done)
     if digest.hexdigest() != analysis.sha256:
         raise ValueError("the stored file changed since it was uploaded")
-    found = analyser.finish()
-    if chosen.get("note"):
-        found.notes.append(chosen["note"])
-    return found, analyser.pictures
 
 
 def _chunks(handle: BinaryIO, digest: Any) -> Iterator[tuple[bytes, int]]:
@@ -344,6 +358,13 @@ def thumbnail_dir(sha256: str) -> Path:
     if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
         raise ValueError(f"{sha256!r} is not a SHA-256")
     return Path(settings.ANALYSIS_DIR) / sha256
+
+
+def toolpath_path(sha256: str, kind: str) -> Path:
+    """The preview's geometry of a file (toolpath.py's records), per kind of machine."""
+    if kind not in ("fff", "cnc"):
+        raise ValueError(f"{kind!r} is not a kind of analysis")
+    return thumbnail_dir(sha256) / f"toolpath-{kind}.bin"
 
 
 def save_thumbnails(sha256: str, pictures: list[Thumbnail]) -> list[dict[str, Any]]:

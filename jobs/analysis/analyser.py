@@ -34,13 +34,17 @@ from jobs.analysis.metadata import SlicerNotes
 from jobs.analysis.planner import Planner
 from jobs.analysis.result import Analysis, Layer, Timeline
 from jobs.analysis.thumbnails import ThumbnailReader
+from jobs.analysis.toolpath import ToolpathWriter
 
 if TYPE_CHECKING:
+    from typing import BinaryIO
+
     from jobs.analysis.thumbnails import Thumbnail
 
 _WORD = re.compile(rb"([A-Z])[ \t]*([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))")
 _CODE = re.compile(rb"[ \t]*([GMT])[ \t]*([0-9]+)(?:\.([0-9]+))?")
 _LAYER_MARK = re.compile(r"^\s*(?:LAYER_CHANGE\b|LAYER:\s*-?\d+|layer \d+, Z ?=)", re.I)
+_FEATURE_MARK = re.compile(r"^\s*(?:TYPE|FEATURE)\s*:\s*(\S.*?)\s*$", re.I)
 _OBJECT_MARK = re.compile(
     r"^\s*printing object\s+(.+?)\s*(?:id:\d+\s+copy\s+\d+)?\s*$", re.I
 )
@@ -67,6 +71,7 @@ class Analyser:
         firmware: str = "marlin",
         materials: Materials | None = None,
         stride: int = 256,
+        toolpath: BinaryIO | None = None,
     ) -> None:
         self.firmware = firmware
         self.cnc = firmware == "grbl"
@@ -107,6 +112,16 @@ class Analyser:
         self.heaters = HeaterModel(self.limits)
         self._moves = 0
         self._tools: dict[int, None] = {}
+        # The preview's geometry (toolpath.py), when asked for: the feature being
+        # printed, and where each layer's records start (one list per way of
+        # finding layers; resolved once the moves that follow the start are written).
+        self.toolpath = ToolpathWriter(toolpath) if toolpath is not None else None
+        self.feature = 0
+        self._layer_bytes: dict[int, list[int]] = {
+            id(self._z_layers): [],
+            id(self._marked_layers): [],
+        }
+        self._unplaced: list[tuple[list[int], int]] = []
 
     # -- bytes in ---------------------------------------------------------------
 
@@ -151,6 +166,20 @@ class Analyser:
         self.clock.finish(self._index)
         layers = self._marked_layers or self._z_layers
         result.layers = [layer for layer in layers if layer.z != -math.inf]
+        if self.toolpath is not None:
+            self.place_layers()
+            starts = self._layer_bytes[id(layers)]
+            starts = [
+                b
+                for b, layer in zip(starts, layers, strict=False)
+                if layer.z != -math.inf
+            ]
+            result.toolpath = {
+                "features": self.toolpath.features,
+                "bytes": self.toolpath.written,
+                "points": self.toolpath.points,
+                "layers": self.toolpath.finish(starts, result.layers),
+            }
         if self._bbox_min[0] != math.inf:
             result.bbox = [
                 [round(value, 3) for value in self._bbox_min],
@@ -172,6 +201,38 @@ class Analyser:
     @property
     def pictures(self) -> list[Thumbnail]:
         return self.thumbs.pictures
+
+    def draw(
+        self,
+        tags: np.ndarray,
+        starts: np.ndarray,
+        ends: np.ndarray,
+        drawn: np.ndarray,
+        speeds: np.ndarray,
+        features: np.ndarray,
+    ) -> None:
+        """Moves for the preview (a no-op unless a toolpath sink was given)."""
+        if self.toolpath is None:
+            return
+        self.toolpath.add(tags, starts, ends, drawn, speeds, features)
+        self.place_layers()
+
+    def place_layers(self) -> None:
+        """Byte offsets of the layers begun since the last moves were drawn."""
+        if self.toolpath is None:
+            return
+        for starts, line in self._unplaced:
+            starts.append(self.toolpath.offset_of(line))
+        self._unplaced.clear()
+
+    def feature_of(self, text: str) -> int | None:
+        """The feature a `;TYPE:` / `;FEATURE:` comment starts, else None."""
+        match = _FEATURE_MARK.match(text)
+        if match is None:
+            return None
+        if self.toolpath is None:
+            return 0
+        return self.toolpath.feature(match.group(1))
 
     def add_picture(self, kind: str, data: bytes) -> None:
         """A thumbnail stored apart from the G-code (a binary G-code block)."""
@@ -357,6 +418,11 @@ class Analyser:
                 self.result.notes.append("a cutting move has no feed rate")
         feed = 1e9 if rapid else self._feed * self._speed_factor
         self.planner.move(self._index, delta, feed)
+        if self.toolpath is not None:
+            self.draw(
+                np.array([self._index]), np.array([pos]), np.array([target]),
+                np.array([cutting]), np.array([feed]), np.array([self.feature]),
+            )  # fmt: skip
         self._pos = target
 
     def add_filament(self, millimetres: float) -> None:
@@ -404,6 +470,8 @@ class Analyser:
             line, offset = here
         layer = Layer(round(z, 4), line, offset)
         layers.append(layer)
+        if self.toolpath is not None:
+            self._unplaced.append((self._layer_bytes[id(layers)], line))
         self.clock.layer_starts(layer)
 
     def _arc(

@@ -43,12 +43,20 @@ def read_block(an: Analyser, data: bytes) -> None:
     commands = np.cumsum(lines.has_code) - lines.has_code + an._index
     offsets = lines.starts + an._offset
     markers = []
+    feature_lines, feature_ids = [], []
     for line in np.flatnonzero(lines.has_comment):
         start, stop = int(lines.code_ends[line]) + 1, int(ends[line])
         text = data[start:stop].decode("utf-8", "replace").rstrip("\r")
-        if text and an.comment(text, int(offsets[line])):
+        if not text:
+            continue
+        feature = an.feature_of(text)
+        if feature is not None:
+            feature_lines.append(int(line))
+            feature_ids.append(feature)
+        elif an.comment(text, int(offsets[line])):
             markers.append(int(line))
     marker_lines = np.array(markers, np.int64)
+    features = Features(an.feature, feature_lines, feature_ids)
     others = [
         (line, data[lines.starts[line] : lines.code_ends[line]].strip())
         for line in np.flatnonzero(lines.has_code & (lines.kind < 0)).tolist()
@@ -59,16 +67,37 @@ def read_block(an: Analyser, data: bytes) -> None:
         if not _breaks(code):
             quiet.append((line, code))
             continue
-        _run(an, lines, commands, offsets, marker_lines, runs_from, line)
+        _run(an, lines, commands, offsets, marker_lines, features, runs_from, line)
+        an.feature = features.at(line)
         an.special(code, int(commands[line]), int(offsets[line]))
         runs_from = line + 1
-    _run(an, lines, commands, offsets, marker_lines, runs_from, count)
+    _run(an, lines, commands, offsets, marker_lines, features, runs_from, count)
     # Commands that do not end a run (fans, messages, M486...), in their order.
     for line, code in quiet:
         an.special(code, int(commands[line]), int(offsets[line]))
+    an.feature = features.at(count)
     an._index = int(commands[-1] + lines.has_code[-1])
     an._offset += len(data)
     an.filament_marks_until(an._index)
+
+
+class Features:
+    """Which feature (`;TYPE:` comments) each line of a block is in."""
+
+    def __init__(self, before: int, lines: list[int], ids: list[int]) -> None:
+        self.before = before
+        self.lines = np.array(lines, np.int64)
+        self.ids = np.array(ids, np.int64)
+
+    def at(self, line: int) -> int:
+        where = int(np.searchsorted(self.lines, line, side="right")) - 1
+        return int(self.ids[where]) if where >= 0 else self.before
+
+    def of(self, rows: np.ndarray) -> np.ndarray:
+        if not len(self.lines):
+            return np.full(len(rows), self.before, np.int64)
+        where = np.searchsorted(self.lines, rows, side="right") - 1
+        return np.where(where >= 0, self.ids[np.maximum(where, 0)], self.before)
 
 
 def _breaks(code: bytes) -> bool:
@@ -93,6 +122,7 @@ def _run(
     commands: np.ndarray,
     offsets: np.ndarray,
     markers: np.ndarray,
+    features: Features,
     lo: int,
     hi: int,
 ) -> None:
@@ -186,6 +216,8 @@ def _run(
     _layers(an, rows, tags, offsets, delta, end_points, cutting, inside)
     speed = np.where(rapid, 1e9, feeds * an._speed_factor)
     an.planner.add(tags, delta, speed)
+    if an.toolpath is not None:
+        an.draw(tags, start_points, end_points, cutting, speed, features.of(rows))
 
 
 def _layers(

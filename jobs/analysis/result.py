@@ -83,6 +83,9 @@ class Analysis:
     #: Thumbnails found (stored apart): [{"width", "height", "format", "size"}].
     thumbnails: list[dict[str, Any]] = field(default_factory=list)
     timeline: Timeline = field(default_factory=Timeline)
+    #: The preview's geometry (stored apart, toolpath.py): {"features": names,
+    #: "bytes", "points", "layers": [[start, end) bytes per layer]}; {} if none.
+    toolpath: dict[str, Any] = field(default_factory=dict)
     #: Why the analysis is partial or what it skipped, in words for people.
     notes: list[str] = field(default_factory=list)
 

@@ -3,9 +3,12 @@
     GET  /printer/analysis/<slug>/<job>          state, figures, layers, objects
     POST /printer/analysis/<slug>/<job>/again    analyse again
     GET  /printer/thumbnail/<slug>/<job>/<name>  one thumbnail (PNG or JPEG)
+    GET  /printer/toolpath/<slug>/<job>/<layer>  one layer of the preview's geometry
 
-Thumbnails are named by the file's SHA-256, so they never change: browsers may
-keep them a day and revalidate with the ETag.
+Thumbnails and toolpaths belong to the file's SHA-256, so they never change:
+browsers may keep them a day and revalidate with the ETag. A toolpath layer is
+binary (jobs/analysis/toolpath.py's records): a phone fetches the layers it shows,
+never the G-code.
 """
 
 from __future__ import annotations
@@ -55,7 +58,49 @@ def analysis(request: HttpRequest, slug: str, job_id: int) -> HttpResponse:
             for layer in found.layers
         ]
         data["notes"] = found.notes
+        if found.toolpath:
+            data["toolpath"] = {
+                "features": found.toolpath["features"],
+                "bytes": [end - start for start, end in found.toolpath["layers"]],
+                "url": f"/printer/toolpath/{slug}/{job.pk}/",
+            }
     return envelope(data)
+
+
+@router.get(
+    "/printer/toolpath/{slug}/{job_id}/{layer}",
+    summary="One layer of a job's toolpath (binary)",
+)
+def toolpath(request: HttpRequest, slug: str, job_id: int, layer: int) -> HttpResponse:
+    """Layer *layer* (0-based) of the preview's geometry: records of 32-bit words,
+    per polyline its first command, kind | feature << 8 | speed << 16, its point
+    count, then x, y per point (float32, mm)."""
+    job = _job(printer_for(request, slug, Role.VIEWER), job_id)
+    found = analysing.analysis_of(job)
+    bounds = (found.toolpath.get("layers") or []) if found is not None else []
+    if found is None or not bounds:
+        raise HttpError(404, f"job {job_id} has no toolpath (yet)")
+    if not 0 <= layer < len(bounds):
+        raise HttpError(404, f"job {job_id} has layers 0 to {len(bounds) - 1}")
+    start, end = bounds[layer]
+    tag = f'"{job.sha256[:16]}-{found.kind}-{layer}-{start}-{end}"'
+    if request.headers.get("If-None-Match") == tag:
+        answer: HttpResponse = HttpResponseNotModified()
+    else:
+        path = analysing.toolpath_path(job.sha256, found.kind)
+        try:
+            with path.open("rb") as handle:
+                handle.seek(start)
+                body = handle.read(end - start)
+        except FileNotFoundError:
+            raise HttpError(404, f"job {job_id}: the toolpath is gone") from None
+        if len(body) != end - start:
+            raise HttpError(404, f"job {job_id}: the toolpath is cut short")
+        answer = HttpResponse(body, content_type="application/octet-stream")
+    answer["ETag"] = tag
+    answer["Cache-Control"] = "private, max-age=86400"
+    answer["X-Content-Type-Options"] = "nosniff"
+    return answer
 
 
 @router.post(

@@ -5,6 +5,7 @@ import {
 import { TempChart } from "./chart.js";
 import { answerPrompt, showPrompt } from "./prompt.js";
 import { sdCardPanel } from "./sdcard.js";
+import { toolpathPreview } from "./toolpath.js";
 
 const root = document.getElementById("printer");
 const slug = root.dataset.printer;
@@ -24,10 +25,14 @@ function setState(state, message) {
   if (bedClear) bedClear.hidden = state !== "waitstart";
 }
 
+const preview = toolpathPreview($("preview"));
+
 function setJob(job) {
   const active = job && (job.state === "printing" || job.state === "paused");
   currentJob = active ? job : null;
   showJob($("job"), job);
+  if (active && job.kind === "print") preview.show(slug, job.id).then((shown) => shown && preview.follow(job));
+  else preview.stop();
   if ($("pause")) {
     $("pause").hidden = !(active && job.state === "printing");
     $("resume").hidden = !(active && job.state === "paused");

@@ -152,6 +152,7 @@ ENDPOINTS = [
     ep("GET", "/printer/analysis/p/{stored}", VIEWER),
     ep("POST", "/printer/analysis/p/{stored}/again", OPERATOR),
     ep("GET", "/printer/thumbnail/p/{stored}/16x16.png", VIEWER),
+    ep("GET", "/printer/toolpath/p/{stored}/0", VIEWER),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
     ep("GET", "/printer/api/p?a=listModelGroups", VIEWER),
     ep("POST", "/printer/api/p?a=listModelGroups", VIEWER),
@@ -250,7 +251,7 @@ def world(db: None, storage: Path, tmp_path: Path, django_user_model: type) -> W
     thumbnail = (
         f"; thumbnail begin 16x16 {len(picture)}\n; {picture}\n; thumbnail end\n"
     )
-    source.write_text(thumbnail + "G28\nG1 X1\n")
+    source.write_text(thumbnail + "G28\nG1 X1\nG1 Z0.2\nG1 X5 E1\n")
     return World(p, q, users, keys, source)
 
 

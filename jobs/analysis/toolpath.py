@@ -1,0 +1,158 @@
+"""The toolpath of a file, layer by layer, for the browser's preview.
+
+The analyser hands every run of moves here as arrays; they are cut into polylines
+(a new one where the move's kind, feature or speed changes), thinned (a point that
+lies within `TOLERANCE` of the segment between its neighbours goes; never two
+neighbours in one pass, so no drawn line strays more than PASSES x TOLERANCE from
+the file's), and written to *sink* as they come: nothing grows with the file but
+the file itself.
+
+One record per polyline, little-endian, 4-byte words (a browser reads it as one
+Uint32Array and one Float32Array over the same bytes):
+
+    word 0      first command of the polyline (uint32)
+    word 1      kind (bits 0-7: 0 travel, 1 extrusion or cut), feature (bits 8-15:
+                index in the features list), speed in mm/s (bits 16-31)
+    word 2      number of points, n
+    words 3..   n points: x, y (float32, mm)
+
+`finish(layers)` says where each layer's records start and end in the sink.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, BinaryIO
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from jobs.analysis.result import Layer
+
+#: Millimetres a thinned point may lie off the drawn line.
+TOLERANCE = 0.02
+#: Passes of thinning (each may drop every other point of a straight stretch).
+PASSES = 3
+#: Features beyond this many share the last index (a file naming hundreds of
+#: features is not a slicer's).
+MAX_FEATURES = 255
+
+
+class ToolpathWriter:
+    """Writes polylines to *sink* as runs of moves come in."""
+
+    def __init__(self, sink: BinaryIO) -> None:
+        self.sink = sink
+        self.features: list[str] = [""]
+        self._feature_ids: dict[str, int] = {"": 0}
+        self.written = 0
+        self.points = 0
+        # The last runs' first commands and byte offsets of their records, so a
+        # layer that starts a little before the run that found it is still placed.
+        self._recent: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def feature(self, name: str) -> int:
+        """The index of feature *name* (a slicer's `;TYPE:` comment)."""
+        name = name.strip()[:40]
+        known = self._feature_ids.get(name)
+        if known is None:
+            known = min(len(self.features), MAX_FEATURES)
+            if known == len(self.features):
+                self.features.append(name)
+            self._feature_ids[name] = known
+        return known
+
+    def add(
+        self,
+        tags: np.ndarray,
+        starts: np.ndarray,
+        ends: np.ndarray,
+        drawn: np.ndarray,
+        speeds: np.ndarray,
+        features: np.ndarray,
+    ) -> None:
+        """Moves from *starts* to *ends* (x, y columns), each with its command, whether
+        it extrudes or cuts, its speed (mm/s) and feature index."""
+        count = len(tags)
+        if not count:
+            return
+        speed = np.clip(np.rint(speeds), 0, 65535).astype(np.uint32)
+        key = (
+            drawn.astype(np.uint32) | (features.astype(np.uint32) << 8) | (speed << 16)
+        )
+        begins = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
+        # Points: each polyline's start, then its moves' ends.
+        points = np.insert(ends[:, :2], begins, starts[begins, :2], axis=0)
+        group_of_point = np.repeat(
+            np.arange(len(begins)), np.diff(np.append(begins, count)) + 1
+        )
+        keep = _thin(points.astype(np.float64), group_of_point)
+        points, group_of_point = points[keep], group_of_point[keep]
+        sizes = np.bincount(group_of_point, minlength=len(begins))
+        first_point = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+        # Words: 3 of header per polyline, 2 per point.
+        out = np.empty(3 * len(begins) + 2 * len(points), np.uint32)
+        header = 3 * np.arange(len(begins)) + 2 * first_point
+        out[header] = tags[begins].astype(np.uint32)
+        out[header + 1] = key[begins]
+        out[header + 2] = sizes.astype(np.uint32)
+        at = 3 * (group_of_point + 1) + 2 * np.arange(len(points))
+        flat = out.view(np.float32)
+        flat[at] = points[:, 0]
+        flat[at + 1] = points[:, 1]
+        offsets = self.written + 4 * header
+        self.sink.write(out.tobytes())
+        self.written += 4 * len(out)
+        self.points += len(points)
+        self._recent = [*self._recent[-1:], (tags[begins], offsets)]
+
+    def offset_of(self, command: int) -> int:
+        """Byte offset of the first record at or after *command*, among the records
+        of the last runs (else the end of what is written)."""
+        for tags, offsets in self._recent:
+            at = int(np.searchsorted(tags, command))
+            if at < len(tags):
+                return int(offsets[at])
+        return self.written
+
+    def finish(self, starts: list[int], layers: list[Layer]) -> list[list[int]]:
+        """Each layer's [start, end) bytes, from *starts* (the byte offset found for
+        each layer as it began, by `offset_of`)."""
+        bounds = []
+        for number in range(len(layers)):
+            start = starts[number] if number < len(starts) else self.written
+            end = starts[number + 1] if number + 1 < len(starts) else self.written
+            bounds.append([start, max(start, end)])
+        return bounds
+
+
+def _thin(points: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Which points to keep: ends of every polyline, and any point further than
+    `TOLERANCE` from the line through its kept neighbours."""
+    keep = np.ones(len(points), bool)
+    if len(points) < 3:
+        return keep
+    ends = np.ones(len(points), bool)
+    ends[1:-1] = (groups[1:-1] != groups[:-2]) | (groups[1:-1] != groups[2:])
+    for parity in range(PASSES):
+        index = np.flatnonzero(keep)
+        if len(index) < 3:
+            break
+        inner = index[1:-1]
+        before, after = points[index[:-2]], points[index[2:]]
+        middle = points[inner]
+        chord = after - before
+        length = np.hypot(chord[:, 0], chord[:, 1])
+        cross = np.abs(
+            chord[:, 0] * (middle[:, 1] - before[:, 1])
+            - chord[:, 1] * (middle[:, 0] - before[:, 0])
+        )
+        # Near the chord, and between its ends (a turn back is never thinned).
+        along = (middle - before) * chord
+        onward = (after - middle) * chord
+        near = (cross <= TOLERANCE * np.maximum(length, 1e-9)) & (length > 0)
+        near &= (along.sum(axis=1) >= 0) & (onward.sum(axis=1) >= 0)
+        # Never two neighbours in one pass: the kept ones bound the error.
+        near &= (np.arange(len(inner)) % 2) == (parity % 2)
+        near &= ~ends[inner]
+        keep[inner[near]] = False
+    return keep
