@@ -138,7 +138,9 @@ def queue_sd_upload(
     else:
         # The card gets plain G-code, whatever the stored file's form.
         stem, dot, extension = source.name.rpartition(".")
-        plain = f"{stem}.gcode" if dot and extension.lower() == "bgcode" else source.name
+        plain = (
+            f"{stem}.gcode" if dot and extension.lower() == "bgcode" else source.name
+        )
         wanted = short_name(plain, taken)
     return Job.objects.create(
         printer=printer,

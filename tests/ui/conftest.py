@@ -187,11 +187,17 @@ class Tab:
     def unexpected_errors(self) -> list[str]:
         return [e for e in self.errors if not any(a.search(e) for a in self.allowed)]
 
-    def screenshot(self, name: str) -> Path:
-        """docs/screenshots/<name>-<size>.png: the README shows two of them."""
+    def screenshot(self, name: str, *, top: str = "") -> Path:
+        """docs/screenshots/<name>-<size>.png: the README shows some of them. With
+        *top* (a data-test), the page is scrolled to that element first."""
         SCREENSHOTS.mkdir(parents=True, exist_ok=True)
         path = SCREENSHOTS / f"{name}-{self.size}.png"
-        self.page.evaluate("() => window.scrollTo(0, 0)")
+        if top:
+            self.page.locator(f"[data-test={top}]").first.evaluate(
+                "el => window.scrollTo(0, el.getBoundingClientRect().top + window.scrollY - 8)"
+            )
+        else:
+            self.page.evaluate("() => window.scrollTo(0, 0)")
         # The simulator's port is a path in a temporary folder of this machine.
         port = self.page.locator("[data-test=port]")
         self.page.screenshot(path=str(path), mask=[port], mask_color="#8889")

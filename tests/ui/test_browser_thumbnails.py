@@ -112,3 +112,93 @@ def test_the_printing_cards_picture_layer_and_end_time_come_from_the_analysis(
     )
     expect(panel.locator("[data-test=analysis-thumbnail]")).to_be_visible()
     assert tab.unexpected_errors() == []
+
+
+def first_load_bytes(tab: Tab, path: str) -> int:
+    """Bytes of every response a first visit to *path* fetches (a fresh context: no
+    cache), until the network is quiet."""
+    sizes: list[int] = []
+
+    def on_response(response) -> None:
+        try:
+            sizes.append(len(response.body()))
+        except Exception:
+            sizes.append(0)
+
+    tab.page.on("response", on_response)
+    tab.page.goto(tab.base + path, wait_until="networkidle")
+    tab.page.remove_listener("response", on_response)
+    return sum(sizes)
+
+
+@pytest.mark.parametrize("size", ["phone", "tablet"])
+def test_the_preview_draws_layers_follows_the_print_and_stays_light(
+    live: LiveHost, open_tab: Callable[..., Tab], size: str
+) -> None:
+    wait_for(
+        lambda: live.host.query(
+            "SELECT count(*) FROM jobs_job WHERE state = 'printing'"
+        ) == [(1,)],
+        PRINT_MS / 1000, "the job to print",
+    )  # fmt: skip
+    wait_for(
+        lambda: live.host.query(
+            "SELECT count(*) FROM jobs_fileanalysis WHERE state = 'done'"
+        )[0][0] >= 1,
+        60, "the analysis",
+    )  # fmt: skip
+    tab = open_tab(live.url, size)
+    page = tab.page
+    log_in(tab, OPERATOR)
+    weight = first_load_bytes(tab, f"/printers/{SLUG}/")
+    assert weight < 300_000, f"the printer page's first load is {weight} bytes"
+
+    preview = page.locator("[data-test=preview]")
+    expect(preview).to_be_visible(timeout=PRINT_MS)
+    expect(preview).to_have_attribute("data-drawn", re.compile(r"^[1-9]\d*$"))
+    label = preview.locator("[data-test=preview-label]")
+    expect(label).to_have_text(re.compile(r"^Layer \d+ of 50 · Z \d+\.\d\d mm$"))
+    # It follows the print: the shown layer is the live one, and it moves on.
+    live_layer = int(preview.get_attribute("data-live-layer") or 0)
+    assert live_layer >= 1
+    expect(preview).to_have_attribute("data-layer", str(live_layer))
+    expect(preview).not_to_have_attribute(
+        "data-live-layer", str(live_layer), timeout=PRINT_MS
+    )
+    assert int(preview.get_attribute("data-live-layer") or 0) > live_layer
+    # The canvas holds a picture, not a blank: some pixels are coloured.
+    coloured = page.evaluate(
+        """canvas => {
+            const data = canvas.getContext("2d").getImageData(0, 0, canvas.width, canvas.height).data;
+            let n = 0;
+            for (let i = 0; i < data.length; i += 4) if (data[i + 3] > 0 && data[i] !== data[i + 2]) n += 1;
+            return n;
+        }""",
+        preview.locator("[data-test=preview-canvas]").element_handle(),
+    )
+    assert coloured > 500, coloured
+    tab.screenshot("preview", top="preview")
+
+    # The slider picks a layer (and stops following); travel and colour redraw.
+    slider = preview.locator("[data-test=preview-layer]")
+    slider.fill("2")
+    expect(label).to_have_text(re.compile(r"^Layer 3 of 50 · Z 0\.60 mm$"))
+    expect(preview.locator("[data-test=preview-follow]")).not_to_be_checked()
+    drawn = preview.get_attribute("data-drawn")
+    preview.locator("[data-test=preview-travel]").check()
+    preview.locator("[data-test=preview-colour]").select_option("speed")
+    expect(preview.locator("[data-test=preview-legend]")).to_contain_text("mm/s")
+    assert preview.get_attribute("data-drawn") == drawn  # the same layer's lines
+
+    # The job page of the running job shows the same file.
+    job_id = live.host.query("SELECT id FROM jobs_job WHERE state = 'printing'")[0][0]
+    tab.go(f"/jobs/{job_id}/")
+    job_preview = page.locator("[data-test=preview]")
+    expect(job_preview).to_be_visible(timeout=PRINT_MS)
+    expect(job_preview.locator("[data-test=preview-label]")).to_have_text(
+        re.compile(r"^Layer \d+ of 50")
+    )
+    expect(job_preview.locator("[data-test=preview-legend]")).to_contain_text(
+        "Perimeter"
+    )
+    assert tab.unexpected_errors() == []
