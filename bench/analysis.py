@@ -6,7 +6,12 @@ so they do not share the CPU), and report seconds and peak RSS:
 - a generated print of `--mb` megabytes (200 by default): layers of perimeters and
   zig-zag infill with retractions, travel and feature comments, as slicers write;
 - the same generated print at a tenth of the size, to show RSS does not grow with it;
-- the real slicer files in tests/data (repeated so each run lasts long enough to time).
+- the real slicer files in tests/data (repeated so each run lasts long enough to time);
+- a file as large as an upload may be (`--huge-mb`, 2048: PRINTHOST_MAX_JOB_BYTES),
+  printhost alone (the reference would take ten minutes): it is read to its end
+  under `HUGE_RSS` of memory. The generated print's layers are thin (about 20 KB
+  each), so it reaches the analyser's cap of 100,000 layers: the layer list, capped,
+  is the one thing that grows with a file.
 
 Prints a table with MB/s side by side and the ratio, and checks the targets: at least
 10x the reference's MB/s on the large file, and peak RSS flat in the file's size.
@@ -28,6 +33,8 @@ REAL = ["prusaslicer-2.5_box-and-cylinder.gcode", "cura-4.13_box.gcode"]
 TARGET_RATIO = 10.0
 #: Peak RSS may grow by this much from the small to the large file (bytes).
 RSS_SLACK = 20 * 1024 * 1024
+#: Peak RSS allowed for the largest upload (a small computer by a printer has 1 GB).
+HUGE_RSS = 256 * 1024 * 1024
 
 
 def generate(path: Path, megabytes: float) -> None:
@@ -90,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--mb", type=float, default=200.0, help="size of the large file"
     )
+    parser.add_argument(
+        "--huge-mb", type=float, default=2048.0,
+        help="size of the largest upload, read by printhost alone (0: skip)",
+    )  # fmt: skip
     parser.add_argument("--out", default=str(ROOT / "bench-analysis.json"))
     options = parser.parse_args(argv)
     rows = []
@@ -134,10 +145,39 @@ def main(argv: list[str] | None = None) -> int:
         (f"speed on the large file {ratio:.1f}x the reference (target {TARGET_RATIO:.0f}x)", ratio >= TARGET_RATIO),
         (f"peak RSS grows {growth / 2**20:.1f} MB from a tenth of the size to the whole (at most {RSS_SLACK / 2**20:.0f} MB)", growth <= RSS_SLACK),
     ]  # fmt: skip
+    if options.huge_mb:
+        huge = huge_run(options.huge_mb)
+        rows.append(huge)
+        print(
+            f"| generated {huge['mb']:.0f} MB, printhost alone | {huge['mb']:.0f} | "
+            f"{huge['ours_mbs']:.1f} | n/a | n/a | {huge['ours_rss'] / 2**20:.0f} MB | n/a |"
+        )
+        checks.append((
+            f"the {huge['mb']:.0f} MB file is read to its end ({huge['layers']} layers) "
+            f"with peak RSS {huge['ours_rss'] / 2**20:.0f} MB (at most "
+            f"{HUGE_RSS / 2**20:.0f} MB)",
+            huge["ours_rss"] <= HUGE_RSS and huge["layers"] > 0,
+        ))  # fmt: skip
     for text, ok in checks:
         print(f"{'PASS' if ok else 'FAIL'}: {text}")
     Path(options.out).write_text(json.dumps(rows, indent=1))
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def huge_run(megabytes: float) -> dict[str, object]:
+    """printhost alone on a generated file of *megabytes* MB."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "huge.gcode"
+        generate(path, megabytes)
+        ours = run("printhost", path, 1)
+        size = path.stat().st_size / 2**20
+    return {
+        "file": f"generated {size:.0f} MB",
+        "mb": size,
+        "ours_mbs": size / ours["seconds"],
+        "ours_rss": ours["rss"],
+        "layers": ours["figures"]["layers"],
+    }
 
 
 if __name__ == "__main__":

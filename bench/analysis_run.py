@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -18,12 +19,15 @@ from jobs.analysis.analyser import Analyser
 
 
 def printhost(path: str) -> dict[str, object]:
-    analyser = Analyser()
-    with Path(path).open("rb") as handle:
-        while chunk := handle.read(1 << 20):
-            analyser.feed(chunk)
-    found = analyser.finish()
+    # As the Celery task does: the preview's toolpath written to a file as it reads.
+    with tempfile.TemporaryFile() as sink:
+        analyser = Analyser(toolpath=sink)
+        with Path(path).open("rb") as handle:
+            while chunk := handle.read(1 << 20):
+                analyser.feed(chunk)
+        found = analyser.finish()
     return {
+        "toolpath_bytes": found.toolpath.get("bytes", 0),
         "motion_seconds": round(found.motion_seconds, 1),
         "heating_seconds": round(found.heating_seconds, 1),
         "filament_mm": round(found.filament_total, 1),

@@ -271,6 +271,7 @@ class Analyser:
                 if at < len(tags):
                     value = float(pushed[at])
             marks.append(round(value, 2))
+        self.timeline.thin()
 
     def _wait(self, seconds: float, *, heating: bool) -> None:
         """The machine stands still: queued moves end first (the firmware syncs)."""
@@ -462,7 +463,15 @@ class Analyser:
         here: tuple[int, int],
     ) -> None:
         """A layer at *z* starting at the last Z change, or *here* if that change
-        belongs to the layer before."""
+        belongs to the layer before.
+
+        Once the slicer marks layers, its marks win (`finish`): the layers found by
+        height are dropped and no longer kept, so a file holds one list of them."""
+        if layers is self._z_layers and self._marked_layers:
+            if layers:
+                layers.clear()
+                self._layer_bytes[id(layers)].clear()
+            return
         if len(layers) >= _MAX_LAYERS:
             return
         line, offset = z_change

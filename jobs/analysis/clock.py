@@ -21,8 +21,11 @@ class Clock:
         self.timeline = timeline
         self.motion = 0.0
         self.heating = 0.0
-        self._next_mark = 0
         self._layers: list[Layer] = []
+
+    @property
+    def _next_mark(self) -> int:
+        return len(self.timeline.seconds) * self.timeline.stride
 
     @property
     def now(self) -> float:
@@ -40,6 +43,7 @@ class Clock:
                 marks = np.arange(self._next_mark, last + 1, self.timeline.stride)
                 for value in ahead[np.searchsorted(tags, marks)]:
                     self._mark(before + float(value))
+                self.timeline.thin()
             while self._layers and self._layers[0].line <= last:
                 layer = self._layers.pop(0)
                 at = int(np.searchsorted(tags, layer.line))
@@ -62,6 +66,7 @@ class Clock:
         total = self.now
         while self._next_mark <= commands:
             self._mark(total)
+        self.timeline.thin()
         for layer in self._layers:
             layer.time = round(total, 2)
         self._layers = []
@@ -69,4 +74,3 @@ class Clock:
     def _mark(self, before: float) -> None:
         self.timeline.seconds.append(round(before, 2))
         self.timeline.heating.append(round(self.heating, 2))
-        self._next_mark += self.timeline.stride

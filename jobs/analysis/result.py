@@ -27,6 +27,10 @@ class Layer:
     time: float = 0.0
 
 
+#: The most marks a timeline keeps (`Timeline.thin`).
+MAX_MARKS = 32_768
+
+
 @dataclass(slots=True)
 class Timeline:
     """Cumulative seconds and filament at every *stride*-th command.
@@ -41,6 +45,15 @@ class Timeline:
     seconds: list[float] = field(default_factory=list)
     heating: list[float] = field(default_factory=list)
     filament: list[float] = field(default_factory=list)
+
+    def thin(self) -> None:
+        """Past `MAX_MARKS` marks, every other one goes and the stride doubles: a
+        file of any length keeps a timeline of a few hundred KB."""
+        while max(len(self.seconds), len(self.filament)) > MAX_MARKS:
+            self.seconds = self.seconds[::2]
+            self.heating = self.heating[::2]
+            self.filament = self.filament[::2]
+            self.stride *= 2
 
     def _at(self, values: list[float], line: int, end: float, total: int) -> float:
         if not values:

