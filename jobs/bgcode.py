@@ -47,8 +47,9 @@ __all__ = [
 
 MAGIC = b"GCDE"
 #: More than any block a slicer writes (G-code blocks hold 64 KiB, thumbnails less):
-#: a size over this is a broken file, never a reason to allocate gigabytes.
-MAX_BLOCK_BYTES = 16 << 20
+#: a size over this is a broken file, never a reason to allocate gigabytes. Deflate
+#: stops at the promised size; heatshrink expands at most 8 times.
+MAX_BLOCK_BYTES = 8 << 20
 
 _FILE_HEADER = struct.Struct("<4sIH")
 _BLOCK_HEADER = struct.Struct("<HHI")
@@ -198,7 +199,8 @@ class BgcodeReader:
             if compression == 0:
                 data = raw
             elif compression == 1:
-                data = zlib.decompress(raw)
+                # Never more than the header promised (a deflate bomb stops here).
+                data = zlib.decompressobj().decompress(raw, size + 1)
             else:
                 window = 11 if compression == 2 else 12
                 data = heatshrink2.decompress(raw, window_sz2=window, lookahead_sz2=4)

@@ -180,6 +180,19 @@ def test_unknown_block_types_and_oversized_claims_are_refused(tmp_path: Path) ->
         inspect_file(huge)
 
 
+def test_a_deflate_bomb_stops_at_the_size_its_header_promised(tmp_path: Path) -> None:
+    bomb = zlib.compress(b"G1 X1\n" * 20_000_000)  # 120 MB of text in 120 KB
+    header = struct.pack("<HHII", 1, 1, 1000, len(bomb))
+    params = b"\0\0"
+    crc = struct.pack("<I", zlib.crc32(header + params + bomb))
+    path = tmp_path / "bomb.bgcode"
+    path.write_bytes(HEADER + header + params + bomb + crc)
+    with pytest.raises(
+        BadGcode, match="decompresses to 1001 bytes, its header says 1000"
+    ):
+        inspect_file(path)
+
+
 def test_meatpack_full_width_characters_and_signal_bytes() -> None:
     # 0xFF 0xFF 0xFB: packing on, 0xFF 0xFF 0xF7: no spaces (the space code is E).
     start = b"\xff\xff\xfb\xff\xff\xf7"
