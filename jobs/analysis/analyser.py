@@ -122,6 +122,7 @@ class Analyser:
             id(self._marked_layers): [],
         }
         self._unplaced: list[tuple[list[int], int]] = []
+        self._chords: list[tuple] | None = None  # an arc's moves, while it is cut
 
     # -- bytes in ---------------------------------------------------------------
 
@@ -180,6 +181,9 @@ class Analyser:
                 "points": self.toolpath.points,
                 "layers": self.toolpath.finish(starts, result.layers),
             }
+            if self.cnc and self.toolpath.written:
+                # A CNC job has no layers: its preview is the whole toolpath at once.
+                result.toolpath["layers"] = [[0, self.toolpath.written]]
         if self._bbox_min[0] != math.inf:
             result.bbox = [
                 [round(value, 3) for value in self._bbox_min],
@@ -216,6 +220,14 @@ class Analyser:
             return
         self.toolpath.add(tags, starts, ends, drawn, speeds, features)
         self.place_layers()
+
+    def _draw_moves(self, moves: list[tuple]) -> None:
+        """Moves of the slow path (index, start, end, drawn, speed, feature)."""
+        index, starts, ends, drawn, speeds, features = zip(*moves, strict=True)
+        self.draw(
+            np.array(index), np.array(starts), np.array(ends),
+            np.array(drawn), np.array(speeds), np.array(features),
+        )  # fmt: skip
 
     def place_layers(self) -> None:
         """Byte offsets of the layers begun since the last moves were drawn."""
@@ -420,10 +432,11 @@ class Analyser:
         feed = 1e9 if rapid else self._feed * self._speed_factor
         self.planner.move(self._index, delta, feed)
         if self.toolpath is not None:
-            self.draw(
-                np.array([self._index]), np.array([pos]), np.array([target]),
-                np.array([cutting]), np.array([feed]), np.array([self.feature]),
-            )  # fmt: skip
+            move = (self._index, pos, target, cutting, feed, self.feature)
+            if self._chords is not None:
+                self._chords.append(move)  # an arc's: drawn as one polyline
+            else:
+                self._draw_moves([move])
         self._pos = target
 
     def add_filament(self, millimetres: float) -> None:
@@ -509,8 +522,12 @@ class Analyser:
             for x, y in arc.extremes:
                 self._include([x, y, start[2]])
                 self._include([x, y, target[2]])
+        self._chords = [] if self.toolpath is not None else None
         for point in arc.points:
             self._segment(point)
+        chords, self._chords = self._chords, None
+        if chords:
+            self._draw_moves(chords)
 
     def _set_position(self, code: bytes, start: int) -> None:
         words = self._words(code, start)

@@ -58,7 +58,10 @@ def analysis(request: HttpRequest, slug: str, job_id: int) -> HttpResponse:
             for layer in found.layers
         ]
         data["notes"] = found.notes
-        if found.toolpath:
+        if found.toolpath and found.kind == "cnc" and found.bbox:
+            # One "layer": the whole job seen from above, at its top.
+            data["layer_list"] = [{"z": found.bbox[1][2], "line": 0, "time": 0.0}]
+        if found.toolpath and found.toolpath["layers"]:
             data["toolpath"] = {
                 "features": found.toolpath["features"],
                 "bytes": [end - start for start, end in found.toolpath["layers"]],

@@ -202,3 +202,45 @@ def test_a_file_without_layers_has_no_toolpath_to_serve(
     response = client.get(f"/printer/toolpath/mk4/{job.pk}/0")
     assert response.status_code == 404
     assert "no toolpath" in response.json()["error"]
+
+
+def test_a_cnc_job_is_drawn_whole_as_one_layer() -> None:
+    sink = io.BytesIO()
+    analyser = Analyser(firmware="grbl", toolpath=sink)
+    analyser.feed(
+        b"G21 G90\nG0 Z5\nG0 X0 Y0\nG1 Z-1 F300\nG1 X20 F600\nG2 X40 Y0 I10 J0\n"
+        b"G1 Y-10\nG0 Z5\nG0 X0 Y0\n"
+    )
+    result = analyser.finish()
+    assert result.layers == []
+    assert result.toolpath["layers"] == [[0, len(sink.getvalue())]]
+    found = records(sink.getvalue())
+    cuts = [r for r in found if r["drawn"]]
+    assert {r["speed"] for r in cuts} == {5, 10}  # the plunge at F300, cuts at F600
+    arc = max(cuts, key=lambda r: len(r["points"]))["points"]
+    assert max(y for _, y in arc) == pytest.approx(10, abs=0.05)  # the arc's top
+    assert any(not r["drawn"] for r in found)  # the rapids
+
+
+def test_a_cnc_jobs_preview_is_one_layer_in_the_api(
+    analysed, make_printer: Callable[..., Printer], tmp_path: Path
+) -> None:
+    _, _, client = analysed
+    from printers.models import Printer as PrinterModel
+    from printhost.models import PrinterRole, Role
+
+    router = make_printer(slug="cnc", firmware="grbl")
+    user = PrinterRole.objects.get(role=Role.VIEWER).user
+    PrinterRole.objects.create(user=user, printer=router, role=Role.VIEWER)
+    source = tmp_path / "pocket.nc"
+    source.write_text("G21 G90\nG0 Z5\nG1 Z-1 F300\nG1 X20 Y5 F600\nG0 Z5\n")
+    job = enqueue_job(router, source, name="pocket.nc", origin="test", queue=False)
+    assert analysing.run(job.analysis_id) == "done"
+    info = client.get(f"/printer/analysis/cnc/{job.pk}").json()["data"]
+    # The plunge from Z5 cuts: the job's top is 5 mm.
+    assert info["layer_list"] == [{"z": 5.0, "line": 0, "time": 0.0}]
+    assert PrinterModel.objects.get(slug="cnc").is_grbl
+    assert len(info["toolpath"]["bytes"]) == 1
+    layer = client.get(f"/printer/toolpath/cnc/{job.pk}/0")
+    assert layer.status_code == 200
+    assert any(r["drawn"] for r in records(layer.content))
