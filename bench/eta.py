@@ -4,9 +4,10 @@ it really has left.
 A real PrusaSlicer slice (tests/data) prints on the Marlin simulator with its motion
 timed as a firmware times it (printers/simulator/_kinematics.py: trapezoids, classic
 jerk, look-ahead over its 16 blocks, the file's M201/M203/M204/M205: a model
-simpler than the analyser's), scaled by `--time-scale` so the run takes minutes,
-not the print's quarter of an hour. runhost's Celery worker analyses the file
-first; then the remaining time the job reports (`/printer/job`, as every client
+simpler than the analyser's), in real time: a quarter of an hour. (`--time-scale`
+shortens it, but a scaled print runs at a pace the estimate only trusts after
+five minutes of motion: at 0.4, 25 % reads 30 % high, 50 % and 75 % within 4 %.)
+runhost's Celery worker analyses the file first; then the remaining time the job reports (`/printer/job`, as every client
 reads it) is sampled, and at 25 %, 50 % and 75 % of the print it is held against
 the time the job then really took to complete: within 5 % passes.
 
@@ -96,7 +97,7 @@ def print_and_sample(folder: Path, time_scale: float) -> tuple[list, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--time-scale", type=float, default=0.4,
+        "--time-scale", type=float, default=1.0,
         help="simulated motion time per real second (the pace correction takes "
         "0.33 to 3)",
     )  # fmt: skip

@@ -179,11 +179,12 @@ def _bgcode_lines(
             continue
         text = tail + block.data
         span, total, done = block.end - block.start, max(1, len(text)), 0
-        lines = text.splitlines(keepends=True)
-        tail = lines.pop() if lines and not lines[-1].endswith(b"\n") else b""
+        # Lines end at b"\n" only, as a text file's do when read line by line.
+        lines = text.split(b"\n")
+        tail = lines.pop()
         for raw in lines:
-            done += len(raw)
-            yield raw, block.start + span * done // total
+            done += len(raw) + 1
+            yield raw + b"\n", block.start + span * done // total
     if tail:
         yield tail, reader.offset
 

@@ -272,3 +272,15 @@ def test_a_copy_to_the_sd_card_is_named_as_plain_gcode(
     printer = make_printer(slug="mk4")
     job = enqueue_job(printer, slice_pair[1], name="box.bgcode", origin="test")
     assert queue_sd_upload(printer, job).sd_name == "BOX.GCO"
+
+
+def test_a_carriage_return_inside_a_line_splits_nothing_as_in_a_text_file(
+    tmp_path: Path,
+) -> None:
+    text = b"G28\nM117 a\rb\nG1 X1\n"
+    binary, plain = tmp_path / "cr.bgcode", tmp_path / "cr.gcode"
+    binary.write_bytes(HEADER + block(1, b"\0\0", text))
+    plain.write_bytes(text)
+    assert [raw for raw, _ in file_lines(binary)] == [
+        raw for raw, _ in file_lines(plain)
+    ]
