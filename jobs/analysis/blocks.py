@@ -170,7 +170,12 @@ def _run(
     if not len(rows):
         an._mark_pending |= bool(len(inside))
         return
-    moving = np.abs(delta).max(axis=1) > 0.0
+    moving = (
+        (delta[:, 0] != 0.0)
+        | (delta[:, 1] != 0.0)
+        | (delta[:, 2] != 0.0)
+        | (delta[:, 3] != 0.0)
+    )
     if not moving.all():
         rows, delta, feeds, rapid = (
             rows[moving],

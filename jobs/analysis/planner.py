@@ -132,15 +132,8 @@ class Planner:
         share = np.abs(deltas) / distance[:, None]
         # Per-axis caps: slow the move so no axis outruns its limit, and take the
         # acceleration no axis would exceed (0 means no limit).
-        tops = np.array(limits.max_feedrate)
-        mosts = np.array(limits.max_acceleration)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            feed_cap = np.where((share > 0) & (tops > 0), tops / share, np.inf).min(
-                axis=1
-            )
-            accel_cap = np.where((share > 0) & (mosts > 0), mosts / share, np.inf).min(
-                axis=1
-            )
+        feed_cap = _least(share, limits.max_feedrate)
+        accel_cap = _least(share, limits.max_acceleration)
         feed = np.minimum(feed, feed_cap)
         accel = np.maximum(np.minimum(accel, accel_cap), 1e-3)
         nominal_sq = feed * feed
@@ -178,8 +171,7 @@ class Planner:
         length = np.sqrt(np.einsum("ij,ij->i", junction, junction))
         with np.errstate(divide="ignore", invalid="ignore"):
             share = np.abs(junction) / length[:, None]
-            mosts = np.array(self.limits.max_acceleration)
-            cap = np.where((share > 0) & (mosts > 0), mosts / share, np.inf).min(axis=1)
+        cap = _least(share, self.limits.max_acceleration)
         junction_accel = np.minimum(accel, cap)
         sin_half = np.sqrt(0.5 * (1.0 - cos_theta))
         vmax_sq = (
@@ -209,8 +201,11 @@ class Planner:
         """Highest entry speeds² by classic jerk (Marlin 1.1, PrusaSlicer's model)."""
         jerks = np.array(self.limits.jerk)
         speeds = deltas / distance[:, None] * feed[:, None]
-        over = np.abs(speeds) > jerks
-        safe = np.minimum(feed, np.where(over, jerks, np.inf).min(axis=1))
+        safe = feed.copy()
+        for axis, jerk in enumerate(jerks):
+            # An axis faster than its jerk starts and stops at its jerk.
+            over = np.abs(speeds[:, axis]) > jerk
+            np.minimum(safe, np.where(over, jerk, np.inf), out=safe)
         prev = np.empty_like(speeds)
         prev[1:] = speeds[:-1]
         prev_feed = np.empty_like(feed)
@@ -318,3 +313,15 @@ class Planner:
             self._parts = []
             self._pending = 0
             self._fixed_entry = None
+
+
+def _least(share: np.ndarray, limits: list[float] | tuple[float, ...]) -> np.ndarray:
+    """Per row, the least of limit / share over the axes that move and have a limit
+    (inf where none does). Column by column: numpy reduces a short axis slowly."""
+    out = np.full(len(share), np.inf)
+    for axis, limit in enumerate(limits):
+        if limit > 0:
+            column = share[:, axis]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                np.minimum(out, np.where(column > 0, limit / column, np.inf), out=out)
+    return out

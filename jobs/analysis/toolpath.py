@@ -147,10 +147,14 @@ def _thin(points: np.ndarray, groups: np.ndarray) -> np.ndarray:
             - chord[:, 1] * (middle[:, 0] - before[:, 0])
         )
         # Near the chord, and between its ends (a turn back is never thinned).
-        along = (middle - before) * chord
-        onward = (after - middle) * chord
+        along = (middle[:, 0] - before[:, 0]) * chord[:, 0] + (
+            middle[:, 1] - before[:, 1]
+        ) * chord[:, 1]
+        onward = (after[:, 0] - middle[:, 0]) * chord[:, 0] + (
+            after[:, 1] - middle[:, 1]
+        ) * chord[:, 1]
         near = (cross <= TOLERANCE * np.maximum(length, 1e-9)) & (length > 0)
-        near &= (along.sum(axis=1) >= 0) & (onward.sum(axis=1) >= 0)
+        near &= (along >= 0) & (onward >= 0)
         # Never two neighbours in one pass: the kept ones bound the error.
         near &= (np.arange(len(inner)) % 2) == (parity % 2)
         near &= ~ends[inner]
