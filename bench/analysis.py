@@ -6,7 +6,9 @@ so they do not share the CPU), and report seconds and peak RSS:
 - a generated print of `--mb` megabytes (200 by default): layers of perimeters and
   zig-zag infill with retractions, travel and feature comments, as slicers write;
 - the same generated print at a tenth of the size, to show RSS does not grow with it;
-- the real slicer files in tests/data (repeated so each run lasts long enough to time);
+- the real slicer files in tests/data (read 20 times in a run so it lasts long enough
+  to time; five runs of each analyser in turns, the best of each kept, as for the
+  small generated file's three);
 - a file as large as an upload may be (`--huge-mb`, 2048: PRINTHOST_MAX_JOB_BYTES),
   printhost alone (the reference would take ten minutes): it is read to its end
   under `HUGE_RSS` of memory. The generated print's layers are thin (about 20 KB
@@ -14,7 +16,9 @@ so they do not share the CPU), and report seconds and peak RSS:
   is the one thing that grows with a file.
 
 Prints a table with MB/s side by side and the ratio, and checks the targets: at least
-10x the reference's MB/s on the large file, and peak RSS flat in the file's size.
+10x the reference's MB/s on every file, and peak RSS flat in the file's size.
+printhost's start-up (numba loading its compiled loops: once per process, as a
+Celery worker does once for all the files it reads) is timed apart and printed.
 """
 
 from __future__ import annotations
@@ -92,6 +96,20 @@ def run(which: str, path: Path, repeat: int = 1) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def best_of(path: Path, repeat: int, rounds: int) -> tuple[dict, dict]:
+    """Both analysers on *path*, in turns, *rounds* times: the fastest run of each
+    (peak RSS and start-up of that same run)."""
+    ours = reference = None
+    for _ in range(rounds):
+        mine, theirs = run("printhost", path, repeat), run("reference", path, repeat)
+        if ours is None or mine["seconds"] < ours["seconds"]:
+            ours = mine
+        if reference is None or theirs["seconds"] < reference["seconds"]:
+            reference = theirs
+    assert ours is not None and reference is not None
+    return ours, reference
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -108,13 +126,13 @@ def main(argv: list[str] | None = None) -> int:
         large, small = Path(folder) / "large.gcode", Path(folder) / "small.gcode"
         generate(large, options.mb)
         generate(small, options.mb / 10)
-        files = [(large, 1), (small, 1)] + [(DATA / name, 20) for name in REAL]
-        for path, repeat in files:
+        # (file, times read in a run, runs): the short runs are taken in turns
+        # several times and the best of each side kept, so a burst of load on
+        # this shared machine does not decide the ratio.
+        files = [(large, 1, 1), (small, 1, 3)] + [(DATA / name, 20, 5) for name in REAL]
+        for path, repeat, rounds in files:
             size = path.stat().st_size * repeat
-            ours, reference = (
-                run("printhost", path, repeat),
-                run("reference", path, repeat),
-            )
+            ours, reference = best_of(path, repeat, rounds)
             rows.append(
                 {
                     "file": path.name
@@ -125,12 +143,14 @@ def main(argv: list[str] | None = None) -> int:
                     "reference_mbs": size / 2**20 / reference["seconds"],
                     "ours_rss": ours["rss"],
                     "reference_rss": reference["rss"],
+                    "start_up": ours["start_up"],
                 }
             )
     print(
         "| file | MB read | printhost MB/s | reference MB/s | ratio | printhost peak RSS | reference peak RSS |"
     )
     print("|---|---|---|---|---|---|---|")
+    checks = []
     for row in rows:
         ratio = row["ours_mbs"] / row["reference_mbs"]
         print(
@@ -138,13 +158,20 @@ def main(argv: list[str] | None = None) -> int:
             f"{row['reference_mbs']:.1f} | {ratio:.1f}x | {row['ours_rss'] / 2**20:.0f} MB | "
             f"{row['reference_rss'] / 2**20:.0f} MB |"
         )
+        checks.append((
+            f"speed on {row['file']} {ratio:.1f}x the reference (target {TARGET_RATIO:.0f}x)",
+            ratio >= TARGET_RATIO,
+        ))  # fmt: skip
+    start_up = max(row["start_up"] for row in rows)
+    print(
+        f"printhost's start-up, once per process (not in the MB/s): at most {start_up:.2f} s"
+    )
     large_row, small_row = rows[0], rows[1]
-    ratio = large_row["ours_mbs"] / large_row["reference_mbs"]
     growth = large_row["ours_rss"] - small_row["ours_rss"]
-    checks = [
-        (f"speed on the large file {ratio:.1f}x the reference (target {TARGET_RATIO:.0f}x)", ratio >= TARGET_RATIO),
-        (f"peak RSS grows {growth / 2**20:.1f} MB from a tenth of the size to the whole (at most {RSS_SLACK / 2**20:.0f} MB)", growth <= RSS_SLACK),
-    ]  # fmt: skip
+    checks.append((
+        f"peak RSS grows {growth / 2**20:.1f} MB from a tenth of the size to the whole (at most {RSS_SLACK / 2**20:.0f} MB)",
+        growth <= RSS_SLACK,
+    ))  # fmt: skip
     if options.huge_mb:
         huge = huge_run(options.huge_mb)
         rows.append(huge)

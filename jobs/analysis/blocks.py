@@ -32,6 +32,10 @@ _BREAKS = {
     b"T": None,  # every tool change
 }  # fmt: skip
 _LAYER_STEP = 1e-4
+#: Distinct comments remembered per file (`Analyser.known_comments`).
+_KNOWN_COMMENTS = 4096
+#: A remembered comment that starts no feature.
+_INERT = -1
 
 
 def read_block(an: Analyser, data: bytes) -> None:
@@ -44,17 +48,36 @@ def read_block(an: Analyser, data: bytes) -> None:
     offsets = lines.starts + an._offset
     markers = []
     feature_lines, feature_ids = [], []
-    for line in np.flatnonzero(lines.has_comment):
-        start, stop = int(lines.code_ends[line]) + 1, int(ends[line])
-        text = data[start:stop].decode("utf-8", "replace").rstrip("\r")
-        if not text:
-            continue
-        feature = an.feature_of(text)
-        if feature is not None:
-            feature_lines.append(int(line))
+    # Comments a file repeats (`;WIDTH:0.45`, `;TYPE:Perimeter`) are read once:
+    # reading one again would change nothing, or start the same feature.
+    known, thumbs = an.known_comments, an.thumbs
+    commented = np.flatnonzero(lines.has_comment)
+    for line, begin, end in zip(
+        commented.tolist(),
+        (lines.code_ends[commented] + 1).tolist(),
+        ends[commented].tolist(),
+        strict=True,
+    ):
+        raw = data[begin:end]
+        reading_picture = thumbs.reading
+        feature = None if reading_picture else known.get(raw)
+        if feature is None:
+            text = raw.decode("utf-8", "replace").rstrip("\r")
+            if not text:
+                continue
+            feature = an.feature_of(text)
+            if feature is None:
+                if an.comment(text, int(offsets[line])):
+                    markers.append(line)
+                    continue
+                if thumbs.reading or reading_picture:
+                    continue
+                feature = _INERT
+            if len(known) < _KNOWN_COMMENTS:
+                known[raw] = feature
+        if feature != _INERT:
+            feature_lines.append(line)
             feature_ids.append(feature)
-        elif an.comment(text, int(offsets[line])):
-            markers.append(int(line))
     marker_lines = np.array(markers, np.int64)
     features = Features(an.feature, feature_lines, feature_ids)
     others = [
@@ -163,30 +186,30 @@ def _run(
     feeds = _ffill(np.where(given, feeds * scale / 60.0, np.nan), an._feed)
     an._pos = [float(v) for v in position[-1]]
     an._feed = float(feeds[-1])
-    # The moves alone, from here on.
-    rows, delta = rows[moves], (position - previous)[moves]
-    start_points, end_points = previous[moves], position[moves]
-    feeds, rapid = feeds[moves], kind[moves] == 0
-    if not len(rows):
-        an._mark_pending |= bool(len(inside))
-        return
-    moving = (
+    # The moves that move, from here on (a G92 or a move to where the head is
+    # already are not moves), picked out once.
+    delta = position - previous
+    moving = moves & (
         (delta[:, 0] != 0.0)
         | (delta[:, 1] != 0.0)
         | (delta[:, 2] != 0.0)
         | (delta[:, 3] != 0.0)
     )
     if not moving.all():
-        rows, delta, feeds, rapid = (
-            rows[moving],
-            delta[moving],
-            feeds[moving],
-            rapid[moving],
+        picked = np.flatnonzero(moving)
+        if not len(picked):
+            an._mark_pending |= bool(len(inside))
+            return
+        rows, delta, feeds, kind = (
+            rows[picked],
+            delta[picked],
+            feeds[picked],
+            kind[picked],
         )
-        start_points, end_points = start_points[moving], end_points[moving]
-    if not len(rows):
-        an._mark_pending |= bool(len(inside))
-        return
+        start_points, end_points = previous[picked], position[picked]
+    else:
+        start_points, end_points = previous, position
+    rapid = kind == 0
     tags = commands[rows]
     an._moves += len(rows)
     xyz = np.sqrt(np.einsum("ij,ij->i", delta[:, :3], delta[:, :3]))
@@ -216,8 +239,14 @@ def _run(
     an.result.print_distance += float(xyz[cutting].sum())
     an.result.travel_distance += float(xyz[~cutting].sum())
     if cutting.any():
-        points = np.concatenate((start_points[cutting, :3], end_points[cutting, :3]))
-        an.include_box(points.min(axis=0), points.max(axis=0))
+        # Column by column: numpy reduces a short axis slowly.
+        low, high = [], []
+        for axis in range(3):
+            ends = end_points[:, axis][cutting]
+            starts = start_points[:, axis][cutting]
+            low.append(min(ends.min(), starts.min()))
+            high.append(max(ends.max(), starts.max()))
+        an.include_box(low, high)
     _layers(an, rows, tags, offsets, delta, end_points, cutting, inside)
     speed = np.where(rapid, 1e9, feeds * an._speed_factor)
     an.planner.add(tags, delta, speed)
@@ -257,8 +286,9 @@ def _layers(
     if an._mark_pending and len(printing):
         firsts.append(int(printing[0]))
         an._mark_pending = False
+    printing_rows = rows[printing]
     for marker in markers:
-        after = np.searchsorted(rows[printing], marker)
+        after = np.searchsorted(printing_rows, marker)
         if after < len(printing):
             firsts.append(int(printing[after]))
         else:

@@ -32,7 +32,7 @@ _SLICERS = (
     (re.compile(r"^(BambuStudio|OrcaSlicer)\s+(\S+)", re.I), None),
     (re.compile(r"^(KISSlicer)\b\s*(\S*)", re.I), None),
 )  # fmt: skip
-_KEY_VALUE = re.compile(r"^\s*([A-Za-z][\w .#\[\]()/-]*?)\s*(?:=|:|,)\s*(.*?)\s*$")
+_SEPARATOR = re.compile(r"[=:,]")
 _DURATION = re.compile(
     r"(\d+(?:\.\d+)?)\s*(d|days?|h|hours?|m|min|minutes?|s|sec|seconds?)\b", re.I
 )
@@ -125,17 +125,19 @@ class SlicerNotes:
         for part in text.split(";"):
             if not self.slicer:
                 self._who(part)
-            match = _KEY_VALUE.match(part)
-            if match is None:
+            # `key = value`, `key: value` or `key, value`: the key ends at the first
+            # separator (none can be inside a key), and only known keys matter.
+            separator = _SEPARATOR.search(part)
+            if separator is None:
                 continue
-            known = _FIELDS.get(match.group(1).lower())
+            known = _FIELDS.get(part[: separator.start()].strip().lower())
             if known is None:
                 continue
             field, reader = known
             if field in self.values:
                 continue
             try:
-                value = reader(match.group(2))
+                value = reader(part[separator.end() :].strip())
             except (ValueError, OverflowError):
                 continue
             if value not in (None, [], ""):

@@ -34,7 +34,7 @@ WINDOW = 64
 #: Moves gathered before they are planned (bounded memory, few numpy calls).
 BATCH = 16384
 #: Marlin's MINIMUM_PLANNER_SPEED (mm/s), squared: the slowest planned junction.
-_MIN_SPEED_SQ = 0.05**2
+MIN_SPEED_SQ = 0.05**2
 
 
 def trapezoid_seconds(
@@ -111,31 +111,31 @@ class Planner:
 
     def add(self, tags: np.ndarray, deltas: np.ndarray, feedrates: np.ndarray) -> None:
         """Queue moves: *deltas* is (n, 4) millimetres X Y Z E, *feedrates* mm/s."""
+        from jobs.analysis import kernels  # numba: loaded by the first analysis only
+
         limits = self.limits
-        xyz = np.sqrt(np.einsum("ij,ij->i", deltas[:, :3], deltas[:, :3]))
-        spatial = xyz > 1e-6
-        distance = np.where(spatial, xyz, np.abs(deltas[:, 3]))
+        deltas = np.ascontiguousarray(deltas, np.float64)
+        distance, accel, feed = kernels.block_limits(
+            deltas,
+            np.ascontiguousarray(feedrates, np.float64),
+            np.array(
+                [
+                    limits.travel_acceleration,
+                    limits.print_acceleration,
+                    limits.retract_acceleration,
+                ],
+                np.float64,
+            ),
+            np.array([limits.min_feedrate, limits.min_travel_feedrate], np.float64),
+            np.array(limits.max_feedrate, np.float64),
+            np.array(limits.max_acceleration, np.float64),
+        )
         keep = distance >= 1e-9
         if not keep.all():
-            tags, deltas, feedrates = tags[keep], deltas[keep], feedrates[keep]
-            distance, spatial = distance[keep], spatial[keep]
+            tags, deltas = tags[keep], deltas[keep]
+            distance, accel, feed = distance[keep], accel[keep], feed[keep]
         if not len(tags):
             return
-        extruding = deltas[:, 3] != 0.0
-        accel = np.where(
-            ~extruding,
-            limits.travel_acceleration,
-            np.where(spatial, limits.print_acceleration, limits.retract_acceleration),
-        )
-        floor = np.where(extruding, limits.min_feedrate, limits.min_travel_feedrate)
-        feed = np.maximum(np.maximum(feedrates, floor), 1e-3)
-        share = np.abs(deltas) / distance[:, None]
-        # Per-axis caps: slow the move so no axis outruns its limit, and take the
-        # acceleration no axis would exceed (0 means no limit).
-        feed_cap = _least(share, limits.max_feedrate)
-        accel_cap = _least(share, limits.max_acceleration)
-        feed = np.minimum(feed, feed_cap)
-        accel = np.maximum(np.minimum(accel, accel_cap), 1e-3)
         nominal_sq = feed * feed
         if limits.classic_jerk:
             max_entry = self._jerk_junctions(deltas, distance, feed)
@@ -164,36 +164,20 @@ class Planner:
         prev_nominal[0] = self._prev_nominal_sq
         self._prev_vector = unit[-1].copy()
         self._prev_nominal_sq = float(nominal_sq[-1])
-        cos_theta = -np.einsum("ij,ij->i", prev, unit)
-        reversal = cos_theta > 0.999999
-        cos_theta = np.clip(cos_theta, -0.999999, 0.999999)
-        junction = unit - prev
-        length = np.sqrt(np.einsum("ij,ij->i", junction, junction))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            share = np.abs(junction) / length[:, None]
-        cap = _least(share, self.limits.max_acceleration)
-        junction_accel = np.minimum(accel, cap)
-        sin_half = np.sqrt(0.5 * (1.0 - cos_theta))
-        vmax_sq = (
-            junction_accel
-            * self.limits.junction_deviation
-            * sin_half
-            / (1.0 - sin_half)
+        from jobs.analysis import kernels  # numba: loaded by the first analysis only
+
+        limits = self.limits
+        return kernels.deviation_junctions(
+            unit,
+            prev,
+            accel,
+            nominal_sq,
+            prev_nominal,
+            distance,
+            np.array(limits.max_acceleration, np.float64),
+            float(limits.junction_deviation),
+            first_free,
         )
-        # Short segments of a curve: limit by the curve's own radius (Marlin's
-        # JD_HANDLE_SMALL_SEGMENTS), or arcs would be taken far too fast.
-        theta = np.arccos(-cos_theta)
-        short = distance < 1.0
-        vmax_sq = np.where(
-            short & (theta > 0),
-            np.minimum(vmax_sq, distance * junction_accel / theta),
-            vmax_sq,
-        )
-        vmax_sq = np.minimum(vmax_sq, np.minimum(nominal_sq, prev_nominal))
-        vmax_sq = np.where(reversal, _MIN_SPEED_SQ, vmax_sq)
-        if first_free:
-            vmax_sq[0] = 0.0  # from rest
-        return vmax_sq
 
     def _jerk_junctions(
         self, deltas: np.ndarray, distance: np.ndarray, feed: np.ndarray
@@ -281,7 +265,7 @@ class Planner:
         np.cumsum(reach, out=before[1:])
         limits = np.empty(count + 1)
         limits[:count] = max_entry
-        limits[count] = _MIN_SPEED_SQ
+        limits[count] = MIN_SPEED_SQ
         suffix = np.minimum.accumulate((limits + before)[::-1])[::-1]
         entry = suffix[:count] - before[:count]
         # Forward pass: f[i+1] = min(e[i+1], f[i] + reach[i]).
@@ -292,7 +276,7 @@ class Planner:
         done = count - keep
         exits = np.empty(count)
         exits[:-1] = entry[1:]
-        exits[-1] = _MIN_SPEED_SQ
+        exits[-1] = MIN_SPEED_SQ
         seconds = trapezoids(
             distance[:done], accel[:done], entry[:done], nominal_sq[:done], exits[:done]
         )
@@ -313,15 +297,3 @@ class Planner:
             self._parts = []
             self._pending = 0
             self._fixed_entry = None
-
-
-def _least(share: np.ndarray, limits: list[float] | tuple[float, ...]) -> np.ndarray:
-    """Per row, the least of limit / share over the axes that move and have a limit
-    (inf where none does). Column by column: numpy reduces a short axis slowly."""
-    out = np.full(len(share), np.inf)
-    for axis, limit in enumerate(limits):
-        if limit > 0:
-            column = share[:, axis]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                np.minimum(out, np.where(column > 0, limit / column, np.inf), out=out)
-    return out

@@ -53,6 +53,11 @@ class ThumbnailReader:
         self._length = 0
         self._total = 0
 
+    @property
+    def reading(self) -> bool:
+        """Inside a picture: every comment is part of it."""
+        return bool(self._kind)
+
     def comment(self, text: str) -> bool:
         if self._kind:
             if _END.match(text):

@@ -75,35 +75,21 @@ class ToolpathWriter:
         count = len(tags)
         if not count:
             return
-        speed = np.clip(np.rint(speeds), 0, 65535).astype(np.uint32)
-        key = (
-            drawn.astype(np.uint32) | (features.astype(np.uint32) << 8) | (speed << 16)
+        from jobs.analysis import kernels  # numba: loaded by the first analysis only
+
+        out, header, points = kernels.polylines(
+            np.ascontiguousarray(tags, np.int64),
+            np.ascontiguousarray(starts[:, :2], np.float64),
+            np.ascontiguousarray(ends[:, :2], np.float64),
+            np.ascontiguousarray(drawn, np.bool_),
+            np.ascontiguousarray(speeds, np.float64),
+            np.ascontiguousarray(features, np.int64),
         )
-        begins = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
-        # Points: each polyline's start, then its moves' ends.
-        points = np.insert(ends[:, :2], begins, starts[begins, :2], axis=0)
-        group_of_point = np.repeat(
-            np.arange(len(begins)), np.diff(np.append(begins, count)) + 1
-        )
-        keep = _thin(points.astype(np.float64), group_of_point)
-        points, group_of_point = points[keep], group_of_point[keep]
-        sizes = np.bincount(group_of_point, minlength=len(begins))
-        first_point = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        # Words: 3 of header per polyline, 2 per point.
-        out = np.empty(3 * len(begins) + 2 * len(points), np.uint32)
-        header = 3 * np.arange(len(begins)) + 2 * first_point
-        out[header] = tags[begins].astype(np.uint32)
-        out[header + 1] = key[begins]
-        out[header + 2] = sizes.astype(np.uint32)
-        at = 3 * (group_of_point + 1) + 2 * np.arange(len(points))
-        flat = out.view(np.float32)
-        flat[at] = points[:, 0]
-        flat[at + 1] = points[:, 1]
         offsets = self.written + 4 * header
         self.sink.write(out.tobytes())
         self.written += 4 * len(out)
-        self.points += len(points)
-        self._recent = [*self._recent[-1:], (tags[begins], offsets)]
+        self.points += points
+        self._recent = [*self._recent[-1:], (out[header].astype(np.int64), offsets)]
 
     def offset_of(self, command: int) -> int:
         """Byte offset of the first record at or after *command*, among the records
@@ -123,40 +109,3 @@ class ToolpathWriter:
             end = starts[number + 1] if number + 1 < len(starts) else self.written
             bounds.append([start, max(start, end)])
         return bounds
-
-
-def _thin(points: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Which points to keep: ends of every polyline, and any point further than
-    `TOLERANCE` from the line through its kept neighbours."""
-    keep = np.ones(len(points), bool)
-    if len(points) < 3:
-        return keep
-    ends = np.ones(len(points), bool)
-    ends[1:-1] = (groups[1:-1] != groups[:-2]) | (groups[1:-1] != groups[2:])
-    for parity in range(PASSES):
-        index = np.flatnonzero(keep)
-        if len(index) < 3:
-            break
-        inner = index[1:-1]
-        before, after = points[index[:-2]], points[index[2:]]
-        middle = points[inner]
-        chord = after - before
-        length = np.hypot(chord[:, 0], chord[:, 1])
-        cross = np.abs(
-            chord[:, 0] * (middle[:, 1] - before[:, 1])
-            - chord[:, 1] * (middle[:, 0] - before[:, 0])
-        )
-        # Near the chord, and between its ends (a turn back is never thinned).
-        along = (middle[:, 0] - before[:, 0]) * chord[:, 0] + (
-            middle[:, 1] - before[:, 1]
-        ) * chord[:, 1]
-        onward = (after[:, 0] - middle[:, 0]) * chord[:, 0] + (
-            after[:, 1] - middle[:, 1]
-        ) * chord[:, 1]
-        near = (cross <= TOLERANCE * np.maximum(length, 1e-9)) & (length > 0)
-        near &= (along >= 0) & (onward >= 0)
-        # Never two neighbours in one pass: the kept ones bound the error.
-        near &= (np.arange(len(inner)) % 2) == (parity % 2)
-        near &= ~ends[inner]
-        keep[inner[near]] = False
-    return keep
