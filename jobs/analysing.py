@@ -52,6 +52,10 @@ _CHUNK = 1 << 20
 HEARTBEAT_SECONDS = 1.0
 #: Timeline marks kept at most per file (the stride grows for huge files).
 MAX_MARKS = 20_000
+#: Timeline marks a file gets at least (the stride shrinks from 256 commands for a
+#: small file, down to one): the ETA reads the time at the acknowledged line from
+#: the timeline, and a mark every 256 commands is a third of a two-minute print.
+MIN_MARKS = 1024
 #: A pending row whose message may be lost is sent again after this long (s).
 RESEND_PENDING_SECONDS = 3600.0
 
@@ -218,6 +222,8 @@ def _analyse(
         or 0
     )
     stride = 256
+    while stride > 1 and commands // stride < MIN_MARKS:
+        stride //= 2
     while commands // stride > MAX_MARKS:
         stride *= 2
     folder = thumbnail_dir(analysis.sha256)

@@ -5,7 +5,11 @@
 Needs Debian's `prusa-slicer` (2.5.0) and `cura-engine` (4.13.0), and the `cura`
 package's printer definitions (`fdmprinter.def.json`, `fdmextruder.def.json`) in
 the folder named by CURA_DEFINITIONS. The models are made here: a 20 x 20 x 10 mm
-box and a cylinder 16 mm across and 6 mm high.
+box and a cylinder 16 mm across and 6 mm high (PrusaSlicer and Cura, a quarter of
+an hour each), and a flat 20 x 20 x 2 mm box (PrusaSlicer alone, the same settings
+but an end G-code that parks the head, `PARK`: `prusaslicer-2.5_flat-box.gcode`,
+ten layers, five minutes), short enough for the ETA test to print on a time-scaled
+simulator (tests/analysis/test_eta_end_to_end.py).
 
 CuraEngine alone leaves the header's placeholders (`;TIME:6666`, `;Filament used:
 0m`, `;MINX:...`); Cura's front end fills them from what the engine reports, and
@@ -26,18 +30,36 @@ from pathlib import Path
 HERE = Path(__file__).parent
 PRUSA = HERE / "prusaslicer-2.5_box-and-cylinder.gcode"
 CURA = HERE / "cura-4.13_box.gcode"
+FLAT = HERE / "prusaslicer-2.5_flat-box.gcode"
 
 Triangle = tuple[tuple[float, float, float], ...]
 
 
 def write_stl(path: Path, triangles: list[Triangle]) -> None:
+    """A binary STL with each facet's unit normal. PrusaSlicer reads a file as ASCII
+    when the 128 bytes after its header are all below 128: with zero normals, a box
+    10 mm wide (10.0 is 00 00 20 41) was refused as a broken ASCII STL. The normals
+    do not change the slices (the box and cylinder slice the same with or without)."""
     with path.open("wb") as out:
         out.write(b"\0" * 80 + struct.pack("<I", len(triangles)))
         for triangle in triangles:
-            out.write(struct.pack("<3f", 0, 0, 0))
+            out.write(struct.pack("<3f", *normal(triangle)))
             for vertex in triangle:
                 out.write(struct.pack("<3f", *vertex))
             out.write(b"\0\0")
+
+
+def normal(triangle: Triangle) -> tuple[float, float, float]:
+    """The facet's unit normal, by the right-hand rule over its vertices."""
+    (ax, ay, az), (bx, by, bz), (cx, cy, cz) = triangle
+    u, v = (bx - ax, by - ay, bz - az), (cx - ax, cy - ay, cz - az)
+    n = (
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    )
+    length = math.sqrt(sum(c * c for c in n)) or 1.0
+    return (n[0] / length, n[1] / length, n[2] / length)
 
 
 def box(size_x: float, size_y: float, size_z: float) -> list[Triangle]:
@@ -63,7 +85,22 @@ def cylinder(radius: float, height: float, sides: int = 48) -> list[Triangle]:
     return out
 
 
-def prusaslicer(models: list[Path]) -> None:
+#: The flat box's end G-code: the head parks and waits for its moves to end, as on
+#: Prusa's own printer profiles, where the generic profile's end homes X (G28 X0).
+#: The analysis does not time homing and the simulator does (as a firmware homes:
+#: three seconds from the box), which the ETA test would count against the estimate.
+PARK = (
+    "G1 Z{max_layer_z+10} F720 ; move print head up\n"
+    "G1 X0 Y200 F3600 ; park\n"
+    "G4 ; wait\n"
+    "M104 S0 ; turn off temperature\n"
+    "M140 S0 ; turn off heatbed\n"
+    "M107 ; turn off fan\n"
+    "M84 ; disable motors\n"
+)
+
+
+def prusaslicer(models: list[Path], out: Path, *options: str) -> None:
     subprocess.run(
         ["prusa-slicer", "--export-gcode", "--gcode-flavor", "marlin2",
          "--machine-limits-usage", "emit_to_gcode", "--gcode-label-objects",
@@ -71,7 +108,7 @@ def prusaslicer(models: list[Path]) -> None:
          "--nozzle-diameter", "0.4", "--filament-diameter", "1.75",
          "--filament-density", "1.24", "--filament-type", "PLA",
          "--temperature", "210", "--bed-temperature", "60", "--fill-density", "15%",
-         "--skirts", "1", "--merge", *map(str, models), "-o", str(PRUSA)],
+         "--skirts", "1", *options, "--merge", *map(str, models), "-o", str(out)],
         check=True, capture_output=True,
     )  # fmt: skip
 
@@ -128,8 +165,11 @@ def main() -> int:
         cube, round_ = Path(folder) / "box.stl", Path(folder) / "cylinder.stl"
         write_stl(cube, box(20, 20, 10))
         write_stl(round_, cylinder(8, 6))
-        prusaslicer([cube, round_])
+        prusaslicer([cube, round_], PRUSA)
         cura(cube)
+        flat = Path(folder) / "flat-box.stl"
+        write_stl(flat, box(20, 20, 2))
+        prusaslicer([flat], FLAT, "--end-gcode", PARK)
     return 0
 
 
