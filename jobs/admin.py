@@ -49,6 +49,7 @@ class JobAdmin(admin.ModelAdmin):
         "bytes_acked",
         "started_at",
         "finished_at",
+        "file_removed_at",
         "state",
         "message",
         "analysis",
@@ -79,8 +80,16 @@ class JobAdmin(admin.ModelAdmin):
     @admin.action(description="Queue again")
     def requeue(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         caller = admin_caller(request)
+        gone = queryset.filter(file_removed_at__isnull=False).count()
+        queryset = queryset.filter(file_removed_at__isnull=True)
         for job in queryset.exclude(state__in=ACTIVE_STATES):
             record(caller, "requeue", printer=job.printer, job=job)
+        if gone:
+            messages.warning(
+                request,
+                f"{gone} job(s) kept as history: their files were removed after "
+                "their printer's job_file_days; upload the files again",
+            )
         count = queryset.exclude(state__in=ACTIVE_STATES).update(
             state=Job.State.QUEUED,
             lines_sent=0,

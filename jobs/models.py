@@ -151,6 +151,12 @@ class Job(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     started_at = models.DateTimeField(null=True, blank=True)
     finished_at = models.DateTimeField(null=True, blank=True)
+    file_removed_at = models.DateTimeField(
+        null=True,
+        blank=True,
+        help_text="when the upkeep removed the job's file (past its printer's "
+        "job_file_days): the job stays as history but cannot be printed again",
+    )
 
     class Meta:
         ordering = ["position", "id"]

@@ -23,6 +23,8 @@ from printers.models import Printer, QueuedCommand
 from printers.worker.spool import next_position
 
 if TYPE_CHECKING:
+    from datetime import datetime
+
     from django.contrib.auth.models import AbstractBaseUser
     from django.core.files.uploadedfile import UploadedFile
 
@@ -159,12 +161,38 @@ def delete_job_file(job: Job) -> None:
         job.path.unlink(missing_ok=True)
 
 
+class FileRemoved(BadGcode):
+    """The job's file was removed by the upkeep, past its printer's `job_file_days`
+    (HTTP 410): the job is history and cannot be printed again."""
+
+    def __init__(self, job: Job, removed_at: datetime) -> None:
+        super().__init__(
+            f"job {job.pk} ({job.name}): its file was removed on "
+            f"{removed_at:%Y-%m-%d}, {job.printer.job_file_days} days after the job "
+            "ended (the printer's job_file_days); upload the file again to print it"
+        )
+
+
 def reprint(job: Job, *, origin: str = "", user: AbstractBaseUser | None = None) -> Job:
     """Queue the same job again (its stored file, or its file on the SD card) at the
-    end of the queue."""
-    if job.file and not job.path.is_file():
-        raise BadGcode(f"{job.name}: the stored file is gone")
+    end of the queue.
+
+    FileRemoved when the upkeep removed the file (checked on the locked row, so a
+    reprint and the upkeep's removal never both win); BadGcode when it is gone
+    otherwise. Either way nothing is queued.
+    """
     with transaction.atomic():
+        if job.file:
+            removed = (
+                Job.objects.select_for_update()
+                .filter(pk=job.pk)
+                .values_list("file_removed_at", flat=True)
+            )
+            removed_at = next(iter(removed), None)
+            if removed_at is not None:
+                raise FileRemoved(job, removed_at)
+            if not job.path.is_file():
+                raise BadGcode(f"{job.name}: the stored file is gone")
         again = _copy_job(job, origin=origin, user=user)
         request_analysis(again)
     return again

@@ -1,4 +1,5 @@
-"""Celery tasks of the jobs app: thin wrappers over `jobs.analysing`."""
+"""Celery tasks of the jobs app: thin wrappers over `jobs.analysing` (file analysis)
+and `jobs.upkeep` (periodic upkeep, scheduled by beat: CELERY_BEAT_SCHEDULE)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from celery import shared_task
 from celery.signals import worker_ready
 from django.db import DatabaseError
 
-from jobs import analysing
+from jobs import analysing, upkeep
 
 
 @shared_task(
@@ -25,6 +26,24 @@ def analyse_file(analysis_id: int) -> str:
 def sweep_analyses() -> int:
     """Send again the analyses a dead worker or a lost message left (beat, 30 s)."""
     return analysing.sweep()
+
+
+@shared_task
+def expire_uploads() -> dict[str, int]:
+    """Partial uploads untouched for PRINTHOST_UPLOAD_EXPIRE_HOURS, with their files."""
+    return upkeep.expire_uploads()
+
+
+@shared_task
+def remove_expired_job_files() -> dict[str, int]:
+    """Finished jobs' files past their printer's `job_file_days` (rows stay)."""
+    return upkeep.remove_expired_job_files()
+
+
+@shared_task
+def remove_orphaned_analyses() -> dict[str, int]:
+    """Analysis rows, thumbnails and previews of files no job holds any more."""
+    return upkeep.remove_orphaned_analyses()
 
 
 @worker_ready.connect

@@ -7,14 +7,15 @@ what the server says it has is exactly what it has, even after a dropped connect
 When the last byte is in, the file goes through the normal job path
 (`enqueue_job(..., move=True)`: sanity check, SHA-256, a queued or stored job).
 
-Abandoned sessions are removed after `EXPIRE_AFTER` (checked whenever one is opened).
+Abandoned sessions (untouched for PRINTHOST_UPLOAD_EXPIRE_HOURS) are removed with
+their partial files by the upkeep (`jobs/upkeep.py`, from Celery beat), never in a
+request.
 """
 
 from __future__ import annotations
 
 import re
 import uuid
-from datetime import datetime, timedelta
 from typing import TYPE_CHECKING
 
 from django.conf import settings
@@ -37,8 +38,6 @@ if TYPE_CHECKING:
 
     from printers.models import Printer
 
-#: Sessions untouched for this long are deleted with their partial file.
-EXPIRE_AFTER = timedelta(days=1)
 #: How much of a request body is read and written at a time.
 CHUNK = 1 << 20
 _SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
@@ -78,7 +77,6 @@ def open_upload(
 
     Bad names, sizes and checksums are refused here, before a byte is sent.
     """
-    expire_stale()
     name = safe_name(name)
     if size < 0:
         raise BadGcode(f"{name}: size must be 0 or more, not {size}")
@@ -204,12 +202,3 @@ def discard(upload: Upload) -> None:
     """End a session and delete its partial file."""
     upload.partial_path.unlink(missing_ok=True)
     Upload.objects.filter(pk=upload.pk).delete()
-
-
-def expire_stale(now: datetime | None = None) -> int:
-    """Delete sessions untouched for `EXPIRE_AFTER`; returns how many."""
-    limit = (now or timezone.now()) - EXPIRE_AFTER
-    stale = list(Upload.objects.filter(updated_at__lt=limit))
-    for upload in stale:
-        discard(upload)
-    return len(stale)

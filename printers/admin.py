@@ -74,7 +74,17 @@ class PrinterAdmin(admin.ModelAdmin):
             "File analysis (time estimates and filament)",
             {"fields": ["motion_profile", "filament_diameter", "filament_density"]},
         ),
-        ("Other", {"fields": ["response_log_limit", "terminal_port", "simulator"]}),
+        (
+            "Other",
+            {
+                "fields": [
+                    "response_log_limit",
+                    "job_file_days",
+                    "terminal_port",
+                    "simulator",
+                ]
+            },
+        ),
         ("Live (written by the worker)", {"fields": readonly_fields}),
     ]
 

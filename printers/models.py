@@ -147,6 +147,11 @@ class Printer(models.Model):
     response_log_limit = models.PositiveIntegerField(
         default=20000, help_text="response lines kept in the database"
     )
+    job_file_days = models.PositiveIntegerField(
+        default=30,
+        help_text="days a finished job's file is kept after it ends (0 = forever); "
+        "the job stays in the history, and a file a queued job uses is kept",
+    )
     simulator = models.CharField(
         max_length=255,
         blank=True,
@@ -302,7 +307,8 @@ class TemperatureSample(models.Model):
     """One temperature reading of a printer, kept for a day: the printer page's chart.
 
     The worker writes one when it saves temperatures, at most every few seconds
-    (`printers/worker/status.py`), and prunes those older than a day.
+    (`printers/worker/status.py`); the upkeep deletes those older than
+    PRINTHOST_TEMPERATURE_KEEP_HOURS (`printers/upkeep.py`).
     """
 
     printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
@@ -313,7 +319,7 @@ class TemperatureSample(models.Model):
         ordering = ["printer", "time"]
         indexes = [
             # Used by GET /printer/temperatures/<slug> (a time range of one printer)
-            # and by the worker's pruning.
+            # and by the upkeep's pruning.
             models.Index(fields=["printer", "time"], name="temperaturesample_time")
         ]
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 
 from django.core.exceptions import ImproperlyConfigured
@@ -45,3 +46,18 @@ def env_list(name: str, default: list[str]) -> list[str]:
     if raw is None:
         return default
     return [item.strip() for item in raw.split(",") if item.strip()]
+
+
+def env_positive(name: str, default: float, *, zero: bool = False) -> float:
+    """A finite number above zero (or zero too, when *zero*); anything else is an error.
+
+    For intervals and retention periods: a negative, infinite or NaN value, or text
+    that is not a number, stops the start with the variable's name.
+    """
+    value = env_float(name, default)
+    if not math.isfinite(value) or value < 0 or (value == 0 and not zero):
+        least = "0 or more" if zero else "more than 0"
+        raise ImproperlyConfigured(
+            f"{name}={os.environ.get(name)!r} must be a finite number {least}"
+        )
+    return value

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import dj_database_url
 
-from printhost.env import env_bool, env_float, env_list, env_str
+from printhost.env import env_bool, env_float, env_list, env_positive, env_str
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 
@@ -150,11 +150,66 @@ CELERY_WORKER_HIJACK_ROOT_LOGGER = False
 CELERY_BEAT_SCHEDULE_FILENAME = str(DATA_DIR / "celerybeat-schedule")
 #: An analysis whose worker has not reported for this long is sent again (s).
 PRINTHOST_ANALYSIS_STALE_SECONDS = env_float("PRINTHOST_ANALYSIS_STALE_SECONDS", 60.0)
+
+# Upkeep, run by Celery beat (printers/upkeep.py, jobs/upkeep.py): never in a request
+# or a printer's worker. Intervals in seconds; each must be more than 0.
+#: How often each printer's response log is trimmed to its `response_log_limit`.
+PRINTHOST_UPKEEP_RESPONSE_LOG_SECONDS = env_positive(
+    "PRINTHOST_UPKEEP_RESPONSE_LOG_SECONDS", 60.0
+)
+#: Temperature samples (the chart's history) older than this many hours are deleted,
+#: every PRINTHOST_UPKEEP_TEMPERATURE_SECONDS.
+PRINTHOST_TEMPERATURE_KEEP_HOURS = env_positive(
+    "PRINTHOST_TEMPERATURE_KEEP_HOURS", 24.0
+)
+PRINTHOST_UPKEEP_TEMPERATURE_SECONDS = env_positive(
+    "PRINTHOST_UPKEEP_TEMPERATURE_SECONDS", 600.0
+)
+#: Partial uploads untouched for this many hours are deleted with their files,
+#: checked every PRINTHOST_UPKEEP_UPLOADS_SECONDS.
+PRINTHOST_UPLOAD_EXPIRE_HOURS = env_positive("PRINTHOST_UPLOAD_EXPIRE_HOURS", 24.0)
+PRINTHOST_UPKEEP_UPLOADS_SECONDS = env_positive(
+    "PRINTHOST_UPKEEP_UPLOADS_SECONDS", 3600.0
+)
+#: How often finished jobs' files past their printer's `job_file_days` are removed.
+PRINTHOST_UPKEEP_JOB_FILES_SECONDS = env_positive(
+    "PRINTHOST_UPKEEP_JOB_FILES_SECONDS", 3600.0
+)
+#: How often analyses (rows, thumbnails, previews) of files no job holds are removed.
+PRINTHOST_UPKEEP_ANALYSES_SECONDS = env_positive(
+    "PRINTHOST_UPKEEP_ANALYSES_SECONDS", 3600.0
+)
+
+
+def _every(task: str, seconds: float) -> dict[str, object]:
+    """A beat entry; a run not started within its interval (at least a minute: the
+    filesystem broker delivers within a second or so) is dropped and the next one
+    comes, so a worker busy with a long analysis never finds a pile of them."""
+    expires = max(seconds, 60.0)
+    return {"task": task, "schedule": seconds, "options": {"expires": expires}}
+
+
 CELERY_BEAT_SCHEDULE = {
     "analysis-sweep": {
         "task": "jobs.tasks.sweep_analyses",
         "schedule": max(5.0, PRINTHOST_ANALYSIS_STALE_SECONDS / 2),
     },
+    "upkeep-response-log": _every(
+        "printers.tasks.trim_response_logs", PRINTHOST_UPKEEP_RESPONSE_LOG_SECONDS
+    ),
+    "upkeep-temperature-samples": _every(
+        "printers.tasks.prune_temperature_samples",
+        PRINTHOST_UPKEEP_TEMPERATURE_SECONDS,
+    ),
+    "upkeep-partial-uploads": _every(
+        "jobs.tasks.expire_uploads", PRINTHOST_UPKEEP_UPLOADS_SECONDS
+    ),
+    "upkeep-job-files": _every(
+        "jobs.tasks.remove_expired_job_files", PRINTHOST_UPKEEP_JOB_FILES_SECONDS
+    ),
+    "upkeep-orphaned-analyses": _every(
+        "jobs.tasks.remove_orphaned_analyses", PRINTHOST_UPKEEP_ANALYSES_SECONDS
+    ),
 }
 #: Analyses running at once in runhost's Celery worker.
 PRINTHOST_CELERY_CONCURRENCY = max(1, int(env_float("PRINTHOST_CELERY_CONCURRENCY", 1)))

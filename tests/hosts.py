@@ -236,6 +236,28 @@ for username, role, printer in {users!r}:
                 process.wait()
             log.close()
 
+    @contextmanager
+    def celery(self, *args: str, log_name: str) -> Iterator[subprocess.Popen]:
+        """`python -m celery --app printhost <args>` as runhost starts it, in its own
+        process group, logging to *log_name* in the folder, until the block ends."""
+        with (self.folder / log_name).open("wb") as log:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "celery", "--app", "printhost", *args,
+                 "--loglevel", "INFO"],
+                cwd=ROOT, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )  # fmt: skip
+            try:
+                yield process
+            finally:
+                if process.poll() is None:
+                    os.killpg(process.pid, signal.SIGTERM)
+                    try:
+                        process.wait(timeout=30)
+                    except subprocess.TimeoutExpired:
+                        os.killpg(process.pid, signal.SIGKILL)
+                        process.wait()
+
     def log_tail(self, lines: int = 40) -> str:
         path = self.folder / "runhost.log"
         text = path.read_text(errors="replace") if path.exists() else ""

@@ -70,9 +70,7 @@ class PrinterWorker(Reactions):
             printer.pk, owner or make_owner(), settings.PRINTHOST_LEASE_SECONDS
         )
         self.poll_seconds = settings.PRINTHOST_POLL_SECONDS
-        self.log = ResponseLog(
-            printer.pk, limit=printer.response_log_limit, lease=self.lease
-        )
+        self.log = ResponseLog(printer.pk, lease=self.lease)
         self.journal = Journal(printer.pk)
         self.status = PrinterStatus(printer.pk, lease=self.lease)
         self.requests = RequestPoller(self)

@@ -1,4 +1,8 @@
-"""Repetier's response log, written in batches so logging never slows the stream."""
+"""Repetier's response log, written in batches so logging never slows the stream.
+
+The worker only writes it: the log is trimmed to the printer's `response_log_limit`
+by the upkeep (`printers/upkeep.py`, from Celery beat), never in the worker's loop.
+"""
 
 from __future__ import annotations
 
@@ -20,8 +24,6 @@ if TYPE_CHECKING:
 #: Flush at least this often (s) and whenever this many lines wait.
 FLUSH_SECONDS = 0.25
 FLUSH_LINES = 1000
-#: Trim rows past the printer's retention bound this often (s).
-PRUNE_SECONDS = 30.0
 
 
 class ResponseLog:
@@ -31,20 +33,16 @@ class ResponseLog:
     next id is simply one past the highest stored.
     """
 
-    def __init__(
-        self, printer_id: int, *, limit: int, lease: Lease | None = None
-    ) -> None:
+    def __init__(self, printer_id: int, *, lease: Lease | None = None) -> None:
         self.printer_id = printer_id
         #: Lines are stored only while this lease is held (None: unconditional).
         self.lease = lease
-        self.limit = limit
         last = ResponseLine.objects.filter(printer_id=printer_id).aggregate(
             last=Max("seq")
         )["last"]
         self.last_id: int = last or 0
         self._buffer: list[tuple[int, datetime, str, int]] = []
         self._flush_at = 0.0
-        self._prune_at = 0.0
 
     def add(self, text: str, kind: int) -> int:
         """Log one line; returns its id."""
@@ -61,9 +59,6 @@ class ResponseLog:
             self.flush()
         if not self._buffer:
             self._flush_at = now + FLUSH_SECONDS
-        if now >= self._prune_at:
-            self._prune_at = now + PRUNE_SECONDS
-            self.prune()
 
     def flush(self) -> None:
         """Write every buffered line in one transaction.
@@ -87,17 +82,6 @@ class ResponseLog:
             cursor.executemany(sql, rows)
         # Published after the commit: a client can always read a gap from the table.
         broadcast.publisher().lines(self.printer_id, batch)
-
-    def prune(self) -> int:
-        """Delete lines older than the retention bound; returns how many went."""
-        floor = self.last_id - self.limit
-        if floor <= 0:
-            return 0
-        with self._held():
-            deleted, _ = ResponseLine.objects.filter(
-                printer_id=self.printer_id, seq__lte=floor
-            ).delete()
-        return deleted
 
     def discard(self) -> None:
         """Forget unsaved lines (a worker that lost its lease writes nothing more)."""

@@ -1,9 +1,12 @@
-"""The printer row's live fields (state, message, temperatures), written when they change."""
+"""The printer row's live fields (state, message, temperatures), written when they change.
+
+Temperature samples for the chart are written here and deleted by the upkeep
+(`printers/upkeep.py`, from Celery beat), never in the worker's loop.
+"""
 
 from __future__ import annotations
 
 from contextlib import nullcontext
-from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 from django.utils import timezone
@@ -18,9 +21,6 @@ if TYPE_CHECKING:
 SAVE_SECONDS = 1.0
 #: A temperature sample for the chart is written at most this often (s).
 SAMPLE_SECONDS = 5.0
-#: Samples older than this are deleted, checked every PRUNE_SECONDS.
-SAMPLE_KEEP = timedelta(hours=24)
-PRUNE_SECONDS = 600.0
 
 
 class PrinterStatus:
@@ -37,7 +37,6 @@ class PrinterStatus:
         self._saved_state: tuple[str, str] | None = None
         self._save_at = 0.0
         self._sample_at: float | None = None
-        self._prune_at: float | None = None
 
     def set_state(self, state: str, message: str = "") -> bool:
         """Change state (saved at the next save); True if it changed."""
@@ -72,20 +71,11 @@ class PrinterStatus:
         self._save_at = now + SAVE_SECONDS
 
     def sample(self, now: float, temperatures: dict[str, Any]) -> bool:
-        """Keep a reading for the chart, at most every SAMPLE_SECONDS; True if written.
-
-        Old samples are pruned now and then, so the table holds about a day.
-        """
+        """Keep a reading for the chart, at most every SAMPLE_SECONDS; True if written."""
         if not temperatures or (self._sample_at is not None and now < self._sample_at):
             return False
-        at = timezone.now()
         TemperatureSample.objects.create(
-            printer_id=self.printer_id, time=at, temperatures=temperatures
+            printer_id=self.printer_id, time=timezone.now(), temperatures=temperatures
         )
         self._sample_at = now + SAMPLE_SECONDS
-        if self._prune_at is None or now >= self._prune_at:
-            TemperatureSample.objects.filter(
-                printer_id=self.printer_id, time__lt=at - SAMPLE_KEEP
-            ).delete()
-            self._prune_at = now + PRUNE_SECONDS
         return True

@@ -20,7 +20,7 @@ from ninja.utils import check_csrf
 
 from jobs.gcode import BadGcode
 from jobs.sdcard import BadCardName, SdRefused
-from jobs.services import ChecksumMismatch
+from jobs.services import ChecksumMismatch, FileRemoved
 from printers.models import Printer
 from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_request
 
@@ -187,6 +187,10 @@ def install_error_handlers(api: Any) -> None:
     @api.exception_handler(SdRefused)
     def _no_card(request: HttpRequest, exc: Exception) -> HttpResponse:
         return reply(request, str(exc), 409)
+
+    @api.exception_handler(FileRemoved)
+    def _file_removed(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, str(exc), 410)
 
     @api.exception_handler(BadGcode)
     def _bad_gcode(request: HttpRequest, exc: Exception) -> HttpResponse:

@@ -32,7 +32,7 @@ SETTINGS = (
     "bufsize", "max_line_length", "ack_timeout", "busy_timeout", "max_resends",
     "temperature_interval", "status_interval", "connect_script", "start_script",
     "end_script", "pause_script", "resume_script", "abort_script", "auto_start",
-    "response_log_limit",
+    "response_log_limit", "job_file_days",
 )  # fmt: skip
 #: Settings only a superuser may change: they name what the server opens.
 SUPERUSER_SETTINGS = ("port", "baud")

@@ -17,7 +17,7 @@ from ninja.errors import HttpError
 
 from jobs.gcode import BadGcode
 from jobs.models import Job, running_job
-from jobs.services import ChecksumMismatch
+from jobs.services import ChecksumMismatch, FileRemoved
 from printers.models import Printer
 from printhost.access import Forbidden, NotAuthenticated
 from printhost.api.analysis import serve_thumbnail
@@ -61,6 +61,8 @@ def moonraker_errors(view: Callable[..., HttpResponse]) -> Callable[..., HttpRes
             return _error(403, str(error) or "not allowed")
         except ChecksumMismatch as error:
             return _error(422, str(error))
+        except FileRemoved as error:
+            return _error(410, str(error))
         except BadGcode as error:
             return _error(413 if "over the limit" in str(error) else 400, str(error))
 

@@ -193,7 +193,8 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
     - `pause`, `resume`, `abort`: act on the running job.
     - `list`: every job of the printer, queue order.
     - `delete` (`id`): remove a job and its file; a running job is refused (409).
-    - `reprint` (`id`): queue a finished job's file again.
+    - `reprint` (`id`): queue a finished job's file again (410 once the upkeep
+      removed the file, past the printer's `job_file_days`).
     """
     # `a` and `id` come from the query for an append: its body is the chunk.
     action = request.GET.get("a") or ""
@@ -278,6 +279,8 @@ def _job_control(
             origin=caller.origin,
             user=caller.user if caller.authenticated else None,
         )
+    except services.FileRemoved as error:
+        raise HttpError(410, str(error)) from None
     except BadGcode as error:
         raise HttpError(409, str(error)) from None
     audit.record(caller, "job.reprint", printer=printer, job=again)

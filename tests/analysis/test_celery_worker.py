@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, wait_for
+from tests.conftest import wait_for
 from tests.hosts import Host, redis_url
 
 pytestmark = pytest.mark.slow
@@ -43,25 +42,11 @@ def host(request: pytest.FixtureRequest, tmp_path: Path) -> Host:
 @contextmanager
 def celery_worker(host: Host, name: str) -> Iterator[subprocess.Popen]:
     """A Celery worker as runhost starts it, in its own process group."""
-    log = (host.folder / f"{name}.log").open("wb")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "celery", "--app", "printhost", "worker",
-         "--loglevel", "INFO", "--concurrency", "1", "--hostname", f"{name}@test",
-         "--without-gossip", "--without-mingle"],
-        cwd=ROOT, env=host.env, stdout=log, stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )  # fmt: skip
-    try:
+    with host.celery(
+        "worker", "--concurrency", "1", "--hostname", f"{name}@test",
+        "--without-gossip", "--without-mingle", log_name=f"{name}.log",
+    ) as process:  # fmt: skip
         yield process
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGTERM)
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-        log.close()
 
 
 def analysis_row(host: Host) -> tuple:

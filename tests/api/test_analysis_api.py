@@ -12,6 +12,7 @@ from django.utils import timezone
 
 from jobs import analysing
 from jobs.analysis.thumbnails import png_encode
+from jobs.eta import estimate
 from jobs.models import FileAnalysis, Job
 from jobs.services import enqueue_job
 from printers.models import Printer
@@ -108,8 +109,9 @@ def test_a_running_job_reports_its_eta_by_the_analysis(keys, analysed: Job) -> N
     assert 0 < job["time_progress"] < 100
     assert job["filament_used"] > 0
     assert job["ends_at"] is not None
-    # The linear guess would say 400 s more; the analysis knows better.
-    assert job["eta"] != pytest.approx(400, abs=5)
+    # Not the linear guess (400 s more): the analysis's estimate at that line.
+    said = estimate(analysing.analysis_of(analysed), line=line, elapsed=400)
+    assert job["eta"] == pytest.approx(said.remaining, abs=2)
 
 
 def test_analyse_again_resets_a_failed_analysis(keys, analysed: Job) -> None:

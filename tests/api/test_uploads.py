@@ -1,16 +1,15 @@
-"""Resumable uploads: sessions, offsets, limits, checksums, dropped reads, expiry."""
+"""Resumable uploads: sessions, offsets, limits, checksums, dropped reads (their expiry:
+tests/upkeep/test_upkeep_partial_uploads.py)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
-from datetime import timedelta
 from typing import TYPE_CHECKING
 
 import pytest
 from django.contrib.auth import get_user_model
 from django.test import Client
-from django.utils import timezone
 
 from jobs import uploads as sessions
 from jobs.models import Job, Upload
@@ -197,13 +196,3 @@ def test_a_read_that_fails_midway_keeps_what_arrived(printer) -> None:
     sessions.append(upload, lambda _: rest.pop(0), offset=250)
     job = sessions.finish(upload)
     assert job.path.read_bytes() == DATA
-
-
-def test_abandoned_sessions_expire_after_a_day(printer) -> None:
-    old = sessions.open_upload(printer, "old.gcode", size=10)
-    Upload.objects.filter(pk=old.pk).update(
-        updated_at=timezone.now() - timedelta(days=2)
-    )
-    fresh = sessions.open_upload(printer, "new.gcode", size=10)
-    assert list(Upload.objects.values_list("pk", flat=True)) == [fresh.pk]
-    assert not old.partial_path.exists()

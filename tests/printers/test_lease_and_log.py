@@ -1,4 +1,5 @@
-"""The printer lease (one worker per printer) and the response log's ids and retention."""
+"""The printer lease (one worker per printer) and the response log's ids (its retention:
+tests/upkeep/test_upkeep_response_log.py)."""
 
 from __future__ import annotations
 
@@ -47,34 +48,20 @@ def test_released_lease_is_free_again(make_printer):
 
 def test_log_ids_keep_growing_across_workers(make_printer):
     printer = make_printer()
-    log = ResponseLog(printer.pk, limit=100)
+    log = ResponseLog(printer.pk)
     for i in range(5):
         log.add(f"line {i}", LineKind.RESPONSE)
     log.flush()
 
-    again = ResponseLog(printer.pk, limit=100)
+    again = ResponseLog(printer.pk)
     assert again.add("next", LineKind.ACK) == 6
-
-
-def test_log_retention_keeps_the_newest_lines(make_printer):
-    printer = make_printer()
-    log = ResponseLog(printer.pk, limit=10)
-    for i in range(25):
-        log.add(f"line {i}", LineKind.COMMAND)
-    log.flush()
-
-    assert log.prune() == 15
-    kept = list(
-        ResponseLine.objects.filter(printer=printer).values_list("seq", flat=True)
-    )
-    assert kept == list(range(16, 26))
 
 
 def test_log_lines_are_not_stored_once_the_lease_was_taken_over(make_printer):
     printer = make_printer()
     lease = Lease(printer.pk, "a:1:x", 10)
     lease.take(now=0.0)
-    log = ResponseLog(printer.pk, limit=100, lease=lease)
+    log = ResponseLog(printer.pk, lease=lease)
     log.add("before", LineKind.RESPONSE)
     log.flush()
     Printer.objects.filter(pk=printer.pk).update(lease_owner="b:2:y")

@@ -1,4 +1,5 @@
-"""Temperature history: the worker's samples (at most every 5 s) and the endpoint."""
+"""Temperature history: the worker's samples (at most every 5 s) and the endpoint (their
+retention: tests/upkeep/test_upkeep_temperature_samples.py)."""
 
 from __future__ import annotations
 
@@ -41,18 +42,6 @@ def test_worker_writes_a_sample_at_most_every_5_seconds(
         for s in TemperatureSample.objects.filter(printer=printer).order_by("time")
     ]
     assert kept == [100.0, 105.0, 110.1]
-
-
-def test_worker_prunes_samples_older_than_a_day(
-    make_printer: Callable[..., Printer],
-) -> None:
-    printer = make_printer()
-    old = TemperatureSample.objects.create(
-        printer=printer, time=timezone.now() - timedelta(hours=25), temperatures=HOT
-    )
-    PrinterStatus(printer.pk).sample(0.0, HOT)
-    assert not TemperatureSample.objects.filter(pk=old.pk).exists()
-    assert TemperatureSample.objects.filter(printer=printer).count() == 1
 
 
 def test_endpoint_returns_samples_in_order_within_the_window(
