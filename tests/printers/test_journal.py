@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -13,7 +14,7 @@ import pytest
 
 from printers.sample_gcode import commands_of, segments
 from printers.worker.journal import Entry, Journal
-from tests.conftest import HOST_COMMANDS, ROOT, wait_for
+from tests.conftest import HOST_COMMANDS, ROOT, Sim, wait_for
 from tests.hosts import Host
 
 pytestmark = pytest.mark.slow
@@ -36,6 +37,10 @@ def _worker(host: Host) -> subprocess.Popen[bytes]:
         [sys.executable, "manage.py", "run_printer", "p0"], cwd=ROOT, env=host.env,
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
+
+
+def _firmware_executed(sim: Sim) -> int:
+    return json.loads(sim.control("stats").removeprefix("ok "))["executed"]
 
 
 def _lease_expired(host: Host) -> bool:
@@ -67,9 +72,12 @@ def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
         wait_for(lambda: journaled() > 500, 60, "the job to be well under way")
         # The firmware stops finishing commands (no more oks); the worker reads the
         # oks already sent, and is killed the moment its journal has the last one.
+        # The record is flushed every 50 ms: it counts only once it holds every
+        # command the firmware's own counter has (host commands included).
         assert sim.control("busy 600") == "ok"
         wait_for(
-            lambda: journaled() == len(ran()) and journaled() > 0, 30,
+            lambda: len(sim.executed()) == _firmware_executed(sim)
+            and journaled() == len(ran()) and journaled() > 0, 30,
             "the worker to journal every ok the firmware sent",
         )  # fmt: skip
         first.send_signal(signal.SIGKILL)
