@@ -129,13 +129,23 @@ def command_problem(text: str, *, grbl: bool = False) -> str:
     return ""
 
 
-def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
+def iter_commands(
+    path: Path, *, start_index: int = 0, start_offset: int = 0
+) -> Iterator[Command]:
     """Yield the commands of *path* in order, comments and blank lines skipped.
 
-    Streams the file; never holds it whole. *start_index* skips commands before it.
+    Streams the file; never holds it whole. *start_index* skips commands before it;
+    *start_offset*, where that command's line begins in a text file, lets the
+    reading seek there instead of reading every line before it (a binary file is
+    decoded from its start). Line numbers count from the start offset then.
     """
     index = 0
-    for number, (raw, offset) in enumerate(file_lines(path), start=1):
+    if start_offset > 0 and _seekable_text(path):
+        index = start_index
+    else:
+        start_offset = 0
+    lines = file_lines(path, start=start_offset)
+    for number, (raw, offset) in enumerate(lines, start=1):
         text = command_of(raw)
         if not text:
             continue
@@ -144,11 +154,17 @@ def iter_commands(path: Path, *, start_index: int = 0) -> Iterator[Command]:
         index += 1
 
 
+def _seekable_text(path: Path) -> bool:
+    with path.open("rb") as handle:
+        return not is_bgcode(handle.read(4))
+
+
 def file_lines(
-    path: Path, *, digest: Any = None, name: str = ""
+    path: Path, *, digest: Any = None, name: str = "", start: int = 0
 ) -> Iterator[tuple[bytes, int]]:
     """The lines of a stored file as plain G-code, each with the offset in the file
-    where it ends. *digest* (hashlib) is fed every byte of the stored file.
+    where it ends. *digest* (hashlib) is fed every byte of the stored file; *start*
+    (a text file only) is where reading begins.
 
     A broken binary file raises BadGcode (naming *name*) where the break is found.
     """
@@ -161,7 +177,8 @@ def file_lines(
             except BadBgcode as error:
                 raise BadGcode(str(error)) from None
             return
-        offset = 0
+        handle.seek(start)
+        offset = start
         for raw in handle:
             offset += len(raw)
             if digest is not None:

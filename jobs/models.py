@@ -151,6 +151,27 @@ class Job(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     started_at = models.DateTimeField(null=True, blank=True)
     finished_at = models.DateTimeField(null=True, blank=True)
+    #: A resumed run: the run it continues, the file's command it starts at and the
+    #: commands sent before it (heat, home, move back, restore the modes).
+    resume_of = models.ForeignKey(
+        "self",
+        on_delete=models.SET_NULL,
+        null=True,
+        blank=True,
+        related_name="resumes",
+        help_text="the interrupted, failed or aborted run this one continues",
+    )
+    start_line = models.BigIntegerField(
+        default=0, help_text="the file's commands before this one are not sent"
+    )
+    start_offset = models.BigIntegerField(
+        default=0, help_text="where the start line begins in the stored file (bytes)"
+    )
+    preamble = models.TextField(
+        blank=True, help_text="commands sent before the file's lines (a resume)"
+    )
+    #: Objects (the analysis' names) the operator cancelled: their lines are skipped.
+    cancelled_objects = models.JSONField(default=list, blank=True)
     file_removed_at = models.DateTimeField(
         null=True,
         blank=True,
@@ -353,3 +374,7 @@ def running_job(printer_id: int) -> Job | None:
         .order_by("started_at", "pk")
         .first()
     )
+
+
+# A model kept in its own module: imported here so Django finds it.
+from jobs.plans import ResumePlan  # noqa: E402, F401

@@ -152,6 +152,15 @@ class Printer(models.Model):
         help_text="days a finished job's file is kept after it ends (0 = forever); "
         "the job stays in the history, and a file a queued job uses is kept",
     )
+    resume_home_z = models.BooleanField(
+        default=False,
+        help_text="resuming a print homes Z too (off: the part is on the bed; the "
+        "nozzle is taken to be where the interrupted print left it)",
+    )
+    resume_lift_mm = models.FloatField(
+        default=5.0,
+        help_text="how far a resume raises Z above the part before moving over it",
+    )
     simulator = models.CharField(
         max_length=255,
         blank=True,

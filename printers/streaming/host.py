@@ -154,6 +154,8 @@ class StreamHost:
         stream.acked += 1
         if line.end_offset > stream.bytes_acked:
             stream.bytes_acked = line.end_offset
+        if line.index >= stream.done:
+            stream.done = line.index + 1
         if stream.type.is_script:
             self._events.append(CommandAnswered(stream, line, ok=True))
 
@@ -163,6 +165,8 @@ class StreamHost:
             return
         stream, line = tag
         stream.acked += 1
+        if line.index >= stream.done:
+            stream.done = line.index + 1
         text = f"line {line.index + 1} {line.text!r}: {message}"
         if stream.type.is_script:
             self._events.append(CommandAnswered(stream, line, ok=False, message=text))
@@ -296,6 +300,8 @@ class StreamHost:
             self._fail(stream, f"line {line.index + 1}: {error}")
             return True
         stream.sent += 1
+        if line.index >= stream.reached:
+            stream.reached = line.index + 1
         stream.move(S.READY_TO_READ_CURSOR)
         return True
 
@@ -303,6 +309,7 @@ class StreamHost:
         line = self._pending.pop(stream.id)
         stream.sent += 1
         stream.acked += 1
+        stream.reached = stream.done = max(stream.done, line.index + 1)
         self._events.append(EspCommand(stream, line.text))
         stream.move(S.READY_TO_READ_CURSOR)
         return True

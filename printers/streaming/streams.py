@@ -184,6 +184,11 @@ class Stream:
     sent: int = 0
     acked: int = 0
     bytes_acked: int = 0
+    #: The file's commands done (acknowledged) and sent: the index after the last
+    #: such line. They equal `acked` and `sent` for a whole file; a resumed run
+    #: starts them at its first line, and lines skipped host-side count as done.
+    done: int = 0
+    reached: int = 0
     eof: bool = False
     outcome: str = ""
     message: str = ""

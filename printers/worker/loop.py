@@ -203,7 +203,7 @@ class PrinterWorker(Reactions):
         stream = self.host.current_stream
         if stream is not None and isinstance(stream.ref, int) and stream.type.is_stream:
             self.journal.record(
-                Entry(stream.ref, stream.acked, stream.sent, stream.bytes_acked)
+                Entry(stream.ref, stream.done, stream.reached, stream.bytes_acked)
             )
 
     def pump(self, now: float) -> None:

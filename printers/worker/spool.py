@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 from django.db.models import F
 from django.utils import timezone
 
-from jobs.gcode import iter_commands
+from jobs.gcode import command_of, iter_commands
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
 from printers.streaming import Line, Stream, StreamType
@@ -64,7 +65,8 @@ def _interrupted(job: Job) -> str:
         )
     return (
         f"interrupted: the worker stopped at line {job.lines_acked} of "
-        f"{job.line_count}; not restarted (clear the bed and requeue it)"
+        f"{job.line_count}; not restarted (resume it from there, or clear the bed "
+        "and print it again)"
     )
 
 
@@ -82,22 +84,41 @@ def claim_next(printer_id: int) -> Job | None:
 
 
 def stream_for(job: Job) -> Stream:
-    """The file stream that prints *job*: its commands read lazily from disk."""
-    commands = (Line(c.index, c.text, c.end_offset) for c in iter_commands(job.path))
-    return Stream(
+    """The file stream that prints *job*: its commands read lazily from disk.
+
+    A resumed run sends its preamble first, then the file from `start_line`; the
+    preamble's lines stand just before the start line (index `start_line - 1`), so
+    the run's progress is the file's from the first ack on.
+    """
+    start = job.start_line
+    preamble = [
+        Line(start - 1, text, job.start_offset) for text in _commands(job.preamble)
+    ]
+    file = iter_commands(job.path, start_index=start, start_offset=job.start_offset)
+    commands = (Line(c.index, c.text, c.end_offset) for c in file)
+    stream = Stream(
         StreamType.SD_FILE_STREAM,
-        commands,
+        itertools.chain(preamble, commands),
         name=job.name,
         ref=job.pk,
         origin=job.origin,
     )
+    stream.done = stream.reached = start
+    stream.bytes_acked = job.start_offset
+    return stream
+
+
+def _commands(text: str) -> list[str]:
+    return [
+        line for line in (command_of(raw.encode()) for raw in text.splitlines()) if line
+    ]
 
 
 def save_progress(stream: Stream, *, state: str | None = None) -> None:
     """Write how far the stream got (called at most about once a second)."""
     fields: dict[str, object] = {
-        "lines_sent": stream.sent,
-        "lines_acked": stream.acked,
+        "lines_sent": stream.reached,
+        "lines_acked": stream.done,
         "bytes_acked": stream.bytes_acked,
     }
     if state:
@@ -112,8 +133,8 @@ def finish(stream: Stream) -> Job.State:
     Job.objects.filter(pk=stream.ref).update(
         state=state,
         message=stream.message,
-        lines_sent=stream.sent,
-        lines_acked=stream.acked,
+        lines_sent=stream.reached,
+        lines_acked=stream.done,
         bytes_acked=stream.bytes_acked,
         finished_at=timezone.now(),
     )
