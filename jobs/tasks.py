@@ -1,5 +1,6 @@
-"""Celery tasks of the jobs app: thin wrappers over `jobs.analysing` (file analysis)
-and `jobs.upkeep` (periodic upkeep, scheduled by beat: CELERY_BEAT_SCHEDULE)."""
+"""Celery tasks of the jobs app: thin wrappers over `jobs.analysing` (file analysis),
+`jobs.resume.planning` (resume plans) and `jobs.upkeep` (periodic upkeep, scheduled
+by beat: CELERY_BEAT_SCHEDULE)."""
 
 from __future__ import annotations
 
@@ -50,3 +51,16 @@ def remove_orphaned_analyses() -> dict[str, int]:
 def _sweep_at_start(**_kwargs: object) -> None:
     """A worker that starts picks up what the last one was doing when it died."""
     analysing.sweep()
+
+
+@shared_task(
+    autoretry_for=(DatabaseError,),
+    retry_backoff=2,
+    retry_backoff_max=60,
+    max_retries=5,
+)
+def plan_resume(plan_id: int) -> str:
+    """Rebuild the machine's state at a resume plan's line and write its preamble."""
+    from jobs.resume.planning import make_plan
+
+    return make_plan(plan_id)

@@ -229,10 +229,13 @@ class MarlinMachine:
 
     def _g28(self, args: str, now: float) -> Job:
         now = yield from self._sync(now)
-        x, y, z, e = self.position
+        given = words(args)
+        axes = [i for i, letter in enumerate("XYZ") if letter in given] or [0, 1, 2]
+        x, y, z, _ = self.position
         seconds = 1.0 + max(abs(x), abs(y)) / 50.0 + abs(z) / 4.0
         now = yield from self._sleep(seconds, now)
-        self.position = [0.0, 0.0, 0.0, e]
+        for axis in axes:  # `G28 X Y` homes X and Y only
+            self.position[axis] = 0.0
         self.planner.set_origin(tuple(self.position))
         self._m114("", now)
 

@@ -7,6 +7,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from printers.simulator._marlin_dialect import DIALECTS
 from printers.simulator.faults import RESET_BANNERS, FaultConfig, Faults
@@ -19,6 +20,9 @@ from printers.simulator.runner import (
     Simulator,
     write_ready_line,
 )
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 __all__ = ["build_parser", "main"]
 
@@ -47,6 +51,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ports.add_argument("--baud", type=int, default=115200, help="0 = unthrottled")
     ports.add_argument("--latency-ms", type=float, default=0.0, help="each direction")
     ports.add_argument("--record", type=Path, help="append executed commands here")
+    ports.add_argument(
+        "--record-state",
+        action="store_true",
+        help="with each recorded command, the state it found (tab, `@`, position: "
+        "X Y Z E for Marlin; the work position and `$G` modes for GRBL)",
+    )
     ports.add_argument("--control", type=Path, help="Unix socket for control commands")
     machine = parser.add_argument_group("firmware")
     machine.add_argument(
@@ -235,6 +245,31 @@ def _firmware(
     args: argparse.Namespace, faults: Faults, recorder: Recorder | None
 ) -> MarlinFirmware | GrblFirmware:
     on_execute = recorder.add if recorder is not None else None
+    if recorder is not None and args.record_state:
+        built: list[MarlinFirmware | GrblFirmware] = []
+
+        def record_with_state(text: str) -> None:
+            recorder.add(f"{text}\t@ {_state(built[0])}")
+
+        built.append(_firmware_with(args, faults, record_with_state))
+        return built[0]
+    return _firmware_with(args, faults, on_execute)
+
+
+def _state(firmware: MarlinFirmware | GrblFirmware) -> str:
+    """What `--record-state` writes after a command: the state it found."""
+    if isinstance(firmware, GrblFirmware):
+        gcode = firmware.gcode
+        work = [p - o for p, o in zip(gcode.position, gcode.work_offset(), strict=True)]
+        return " ".join(f"{v:.4f}" for v in work) + " " + gcode.modes()
+    return " ".join(f"{v:.5f}" for v in firmware.machine.position)
+
+
+def _firmware_with(
+    args: argparse.Namespace,
+    faults: Faults,
+    on_execute: Callable[[str], None] | None,
+) -> MarlinFirmware | GrblFirmware:
     now = time.monotonic()
     if args.firmware == "grbl":
         return GrblFirmware(

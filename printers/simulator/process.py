@@ -49,6 +49,10 @@ class SimulatorProcess:
 
     def executed(self) -> list[str]:
         """Commands the firmware executed so far, in order (flushed every 50 ms)."""
+        return [line.split("\t@", 1)[0] for line in self.recorded()]
+
+    def recorded(self) -> list[str]:
+        """The record's lines as written (`--record-state` adds each command's state)."""
         if not self.record.exists():
             return []
         return self.record.read_text().splitlines()

@@ -1,0 +1,272 @@
+"""Resume plans, from the operator's choice to the queued run.
+
+    plan = request_plan(job, line=..., layer=..., user=..., origin=...)  # the view
+    make_plan(plan.pk)                        # the Celery task: read, rebuild, write
+    resumed = start_plan(plan, ...)           # the view, once the operator agrees
+
+`request_plan` checks everything it can without reading the file (the job's state,
+its file, its analysis, the line or layer) and raises `ResumeRefused` with the
+HTTP status and why; nothing is written then. `make_plan` reads the file up to
+the line (or up to where the run stopped, if that is further) to rebuild the
+machine's state, and writes the preamble. `start_plan` queues a new run of the
+same file ahead of the printer's queue, linked to the old one.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from typing import TYPE_CHECKING, Any
+
+from django.db import transaction
+from django.db.models import Min
+
+from jobs.analysing import analysis_of
+from jobs.gcode import BadGcode, iter_commands
+from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
+from jobs.paths import PathRefused
+from jobs.resume.preamble import ResumePoint, build_preamble
+from jobs.resume.state import MachineState, StateReader
+from printers import broadcast
+from printers.worker.spool import next_position
+
+if TYPE_CHECKING:
+    from django.contrib.auth.models import AbstractBaseUser
+
+logger = logging.getLogger(__name__)
+
+#: States of a run that stopped before its end and can be resumed.
+RESUMABLE = frozenset({Job.State.INTERRUPTED, Job.State.FAILED, Job.State.ABORTED})
+#: Commands the firmware may hold acknowledged but not yet run (Marlin's planner).
+IN_FLIGHT = 16
+
+
+class ResumeRefused(ValueError):
+    """The plan or its start is refused; `status` is the HTTP status to answer."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def request_plan(
+    job: Job,
+    *,
+    line: int | None = None,
+    layer: int | None = None,
+    user: AbstractBaseUser | None = None,
+    origin: str = "",
+) -> ResumePlan:
+    """Check the choice and store a pending plan; the task is sent once committed.
+
+    *line* is a command index (0-based: the first command not printed yet);
+    *layer* a 0-based index in the analysis' layers; neither: the line after the
+    last one the firmware acknowledged.
+    """
+    _check_resumable(job)
+    analysed = _analysis(job)
+    if line is not None and layer is not None:
+        raise ResumeRefused(400, "give a line or a layer, not both")
+    if layer is not None:
+        layers = analysed.layers
+        if not 0 <= layer < len(layers):
+            raise ResumeRefused(
+                400, f"layer {layer} is not in the file: it has {len(layers)} layers "
+                f"(0 to {len(layers) - 1})",
+            )  # fmt: skip
+        line = layers[layer].line
+    if line is None:
+        line = job.lines_acked
+    if line < 0:
+        raise ResumeRefused(400, f"line {line} is not in the file")
+    if line >= job.line_count:
+        raise ResumeRefused(
+            400, f"line {line} is beyond the file: it has {job.line_count} commands, "
+            f"so a resume starts at 0 to {job.line_count - 1}",
+        )  # fmt: skip
+    with transaction.atomic():
+        plan = ResumePlan.objects.create(
+            job=job, line=line, layer=layer, created_by=user, origin=origin
+        )
+        pk = plan.pk
+        transaction.on_commit(lambda: send(pk))
+    return plan
+
+
+def _check_resumable(job: Job) -> None:
+    if job.kind != Job.Kind.PRINT:
+        raise ResumeRefused(
+            409, f"job {job.pk} printed from the SD card: printhost did not stream it"
+        )
+    if job.state in ACTIVE_STATES or job.state == Job.State.QUEUED:
+        raise ResumeRefused(
+            409, f"job {job.pk} is {job.state}: only a run that stopped can resume"
+        )
+    if job.state not in RESUMABLE:
+        raise ResumeRefused(
+            409, f"job {job.pk} is {job.state}: only an interrupted, failed or "
+            "aborted run can resume",
+        )  # fmt: skip
+    if job.file_removed_at is not None:
+        raise ResumeRefused(
+            410, f"job {job.pk}: its file was removed on {job.file_removed_at:%Y-%m-%d} "
+            "(the printer's job_file_days)",
+        )  # fmt: skip
+    try:
+        present = job.path.is_file()
+    except PathRefused:
+        present = False
+    if not present:
+        raise ResumeRefused(409, f"job {job.pk}: the stored file is gone")
+
+
+def _analysis(job: Job) -> Any:
+    analysis = job.analysis
+    state = analysis.state if analysis is not None else None
+    if state != FileAnalysis.State.DONE:
+        why = {
+            None: "has no analysis",
+            FileAnalysis.State.PENDING: "is not analysed yet",
+            FileAnalysis.State.RUNNING: "is still being analysed",
+            FileAnalysis.State.FAILED: "could not be analysed",
+        }[state]
+        raise ResumeRefused(
+            409, f"job {job.pk}: its file {why}; a resume needs the analysis (the "
+            "machine's state at each line, the layers)",
+        )  # fmt: skip
+    analysed = analysis_of(job)
+    if analysed is None:
+        raise ResumeRefused(409, f"job {job.pk}: its analysis cannot be read")
+    return analysed
+
+
+def send(pk: int) -> bool:
+    """Hand the plan to Celery; a broker that is away fails the plan, saying so."""
+    from jobs.tasks import plan_resume
+
+    try:
+        plan_resume.delay(pk)
+    except Exception as error:  # any broker failure: the operator asks again
+        logger.warning("resume plan %s not sent: %s", pk, error)
+        ResumePlan.objects.filter(pk=pk, state=ResumePlan.State.PENDING).update(
+            state=ResumePlan.State.FAILED,
+            reason=f"the task queue is not reachable ({error}); try again",
+        )
+        return False
+    return True
+
+
+def make_plan(pk: int) -> str:
+    """Read the file, rebuild the state at the plan's line, write the preamble."""
+    plan = ResumePlan.objects.select_related("job__printer").filter(pk=pk).first()
+    if plan is None or plan.state != ResumePlan.State.PENDING:
+        return "skipped"
+    job = plan.job
+    try:
+        point, offset = read_point(job, plan.line)
+    except (BadGcode, OSError, PathRefused) as error:
+        ResumePlan.objects.filter(pk=pk).update(
+            state=ResumePlan.State.FAILED, reason=f"the file cannot be read: {error}"
+        )
+        return "failed"
+    machine = point.state.as_dict()
+    machine.update(start_offset=offset, stop_z=point.stop_z, warnings=point.warnings)
+    ResumePlan.objects.filter(pk=pk, state=ResumePlan.State.PENDING).update(
+        state=ResumePlan.State.READY,
+        preamble="\n".join(build_preamble(point)),
+        machine=machine,
+    )
+    broadcast.publisher().job(job.pk)
+    return "ready"
+
+
+def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
+    """The state at *line* and where its text begins (0 for a binary file)."""
+    printer = job.printer
+    stop = max(job.lines_acked, 0)
+    reader = StateReader(printer.firmware)
+    recent: deque[float] = deque(maxlen=IN_FLIGHT)
+    at_line = None
+    offset = start = 0
+    for command in iter_commands(job.path):
+        if command.index == line:
+            at_line = reader.state.as_dict()
+        if command.index >= max(line, stop):
+            break
+        reader.feed(command.text)
+        if command.index >= stop - IN_FLIGHT:
+            recent.append(reader.state.position[2])
+        offset = command.end_offset
+        if command.index + 1 == line:
+            start = offset
+    if at_line is None:
+        raise BadGcode(f"line {line} is beyond the file's {reader.commands} commands")
+    state = MachineState.from_dict(at_line)
+    stop_z = min(recent) if recent else state.position[2]
+    warnings = []
+    if state.position[2] < stop_z - 1e-6:
+        warnings.append(
+            f"the resume height ({state.position[2]:g} mm) is below where the print "
+            f"stopped ({stop_z:g} mm): the nozzle goes down into what was printed"
+        )
+    if state.firmware != "grbl" and not state.heaters:
+        warnings.append("the file set no temperatures before this line")
+    point = ResumePoint(
+        line=line,
+        state=state,
+        stop_z=stop_z,
+        home_z=printer.resume_home_z,
+        lift=printer.resume_lift_mm,
+        warnings=warnings,
+    )
+    return point, start
+
+
+def start_plan(
+    plan: ResumePlan, *, user: AbstractBaseUser | None = None, origin: str = ""
+) -> Job:
+    """Queue the resumed run ahead of the printer's queue; the plan is used up."""
+    with transaction.atomic():
+        locked = ResumePlan.objects.select_for_update().get(pk=plan.pk)
+        if locked.state != ResumePlan.State.READY:
+            raise ResumeRefused(
+                409, f"resume plan {plan.pk} is {locked.state}, not ready to start"
+            )
+        job = Job.objects.select_related("printer").get(pk=locked.job_id)
+        _check_resumable(job)
+        printer = job.printer
+        busy = Job.objects.filter(printer=printer, state__in=ACTIVE_STATES).first()
+        if busy is not None:
+            raise ResumeRefused(
+                409, f"{printer.slug} is printing job {busy.pk}: a resume waits for an "
+                "idle printer with the part on its bed",
+            )  # fmt: skip
+        first = Job.objects.filter(printer=printer, state=Job.State.QUEUED).aggregate(
+            first=Min("position")
+        )["first"]
+        resumed = Job.objects.create(
+            printer=printer,
+            name=job.name,
+            kind=job.kind,
+            file=job.file,
+            size_bytes=job.size_bytes,
+            line_count=job.line_count,
+            sha256=job.sha256,
+            analysis=job.analysis,
+            position=(first - 1) if first is not None else next_position(printer.pk),
+            origin=origin,
+            uploaded_by=user,
+            resume_of=job,
+            start_line=locked.line,
+            start_offset=int(locked.machine.get("start_offset", 0)),
+            preamble=locked.preamble,
+            cancelled_objects=job.cancelled_objects,
+            lines_acked=locked.line,
+            lines_sent=locked.line,
+            bytes_acked=int(locked.machine.get("start_offset", 0)),
+        )
+        locked.state = ResumePlan.State.STARTED
+        locked.resumed = resumed
+        locked.save(update_fields=["state", "resumed"])
+    broadcast.publisher().job(resumed.pk)
+    return resumed

@@ -1,0 +1,229 @@
+"""The machine's state at any line of a file, rebuilt by reading the file to it (sans-IO).
+
+    reader = StateReader(firmware="marlin")
+    for text in commands:          # cleaned commands, as the stream sends them
+        reader.feed(text)
+    reader.state                   # what the firmware would hold after them
+
+What a resume needs to put back, and nothing else: the modes (units, absolute or
+relative axes and E, GRBL's work coordinate system and feed mode), the logical
+position (as G92 left it) and E, the feedrate, heater targets, fans, the tool,
+and the last of each setting command (acceleration, speed and flow factors,
+linear advance...) to replay. Heaters, fans and settings are kept by code and
+index, so a resume sends one command for each. Positions are millimetres,
+whatever units the file uses.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+INCH = 25.4
+_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_AXES = "XYZE"
+
+#: Settings a resume replays as the file last gave them (the code, then the word
+#: that says which heater, fan or tool it is for).
+REPLAYED = frozenset(
+    {
+        "M201", "M203", "M204", "M205", "M207", "M208", "M209", "M220", "M221",
+        "M566", "M572", "M593", "M900",
+    }
+)  # fmt: skip
+#: Heater targets: code -> (the heater's name, waits).
+HEATERS = {
+    "M104": ("tool", False),
+    "M109": ("tool", True),
+    "M140": ("bed", False),
+    "M190": ("bed", True),
+    "M141": ("chamber", False),
+    "M191": ("chamber", True),
+}
+#: Mesh bed levelling a file switched on (G29 probes; a resume must never probe
+#: with a part on the bed: it switches the stored mesh on instead).
+LEVELLING = frozenset({"G29", "G80", "M420"})
+
+
+@dataclass(slots=True)
+class MachineState:
+    """What the firmware holds after a run of commands (millimetres)."""
+
+    firmware: str = "marlin"
+    inches: bool = False
+    absolute: bool = True
+    absolute_e: bool = True
+    position: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    #: Which axes a move or G92 ever set: a resume moves only to those.
+    known: list[bool] = field(default_factory=lambda: [False] * 4)
+    #: mm/min; 0 until the file sets one.
+    feedrate: float = 0.0
+    tool: int = 0
+    #: Targets by heater: {"tool0": 215, "bed": 60, "chamber": 0}.
+    heaters: dict[str, float] = field(default_factory=dict)
+    #: Fan speeds by index (0..255).
+    fans: dict[str, float] = field(default_factory=dict)
+    #: The last command of each replayed setting: {"M204": "M204 P1000 T1500"}.
+    settings: dict[str, str] = field(default_factory=dict)
+    levelling: bool = False
+    #: Firmware retraction (G10) in effect: the resume's next G11 primes it.
+    retracted: bool = False
+    # GRBL (cnc): the work coordinate system (0 = G54), feed mode, spindle, coolant.
+    coordinate_system: int = 0
+    #: GRBL's modal motion (a block of axis words alone moves this way).
+    motion: str = "G0"
+    inverse_time: bool = False
+    spindle: str = "M5"
+    spindle_speed: float = 0.0
+    coolant: list[str] = field(default_factory=list)
+    #: The highest Z any move went to (mm): a CNC resume travels above it.
+    top: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> MachineState:
+        names = set(cls.__slots__)  # type: ignore[attr-defined]
+        return cls(**{k: v for k, v in data.items() if k in names})
+
+
+def words_of(text: str) -> tuple[list[str], dict[str, float]]:
+    """The block's codes (`G1`, `M104`, `T1`; a GRBL block may hold several, in
+    order) and its other words by letter."""
+    codes: list[str] = []
+    words: dict[str, float] = {}
+    for letter, number in _WORD.findall(text.upper()):
+        if letter in "GMT" and not (letter == "T" and codes and codes[-1] in HEATERS):
+            codes.append(f"{letter}{int(float(number))}")
+        else:
+            words[letter] = float(number)
+    return codes, words
+
+
+class StateReader:
+    """Feeds on commands; `state` is the machine's state after the last one."""
+
+    def __init__(self, firmware: str = "marlin") -> None:
+        self.cnc = firmware == "grbl"
+        self.state = MachineState(firmware=firmware)
+        self.commands = 0
+
+    def feed(self, text: str) -> None:
+        self.commands += 1
+        if not text or text.startswith("$"):
+            return  # GRBL settings and system commands change no modal state
+        codes, words = words_of(text)
+        moved = False
+        for code in codes:
+            if code in ("G0", "G1", "G2", "G3"):
+                moved = True
+                self.state.motion = code
+            self._command(code, words, text)
+        if moved or (self.cnc and not codes and words):
+            self._move(words)  # a GRBL block of axis words keeps the last motion
+        elif self.cnc and "F" in words:
+            self.state.feedrate = self._scale(words["F"])
+
+    def _command(self, code: str, words: dict[str, float], text: str) -> None:
+        state = self.state
+        if code == "G90":
+            state.absolute = True
+            if not self.cnc:
+                state.absolute_e = True
+        elif code == "G91":
+            state.absolute = False
+            if not self.cnc:
+                state.absolute_e = False
+        elif code == "M82":
+            state.absolute_e = True
+        elif code == "M83":
+            state.absolute_e = False
+        elif code in ("G20", "G21"):
+            state.inches = code == "G20"
+        elif code == "G92":
+            self._set_position(words)
+        elif code == "G28" and not self.cnc:
+            self._home(words)
+        elif code in ("G10", "G11") and not self.cnc:
+            state.retracted = code == "G10" and "P" not in words and "L" not in words
+        elif code[0] == "T":
+            state.tool = int(code[1:])
+        elif code in HEATERS and not self.cnc:
+            self._heater(code, words)
+        elif code in ("M106", "M107") and not self.cnc:
+            index = str(int(words.get("P", 0)))
+            state.fans[index] = words.get("S", 255.0) if code == "M106" else 0.0
+        elif code in REPLAYED and not self.cnc:
+            state.settings[code] = text
+        elif code in LEVELLING and not self.cnc:
+            state.levelling = code != "M420" or words.get("S", 1.0) != 0
+        elif self.cnc:
+            self._cnc_mode(code, words)
+
+    def _scale(self, value: float) -> float:
+        return value * INCH if self.state.inches else value
+
+    def _move(self, words: dict[str, float]) -> None:
+        state = self.state
+        if "F" in words and words["F"] > 0:
+            state.feedrate = self._scale(words["F"])
+        for axis, letter in enumerate(_AXES):
+            if letter not in words or (self.cnc and letter == "E"):
+                continue
+            value = self._scale(words[letter])
+            absolute = state.absolute_e if letter == "E" else state.absolute
+            if absolute:
+                state.position[axis] = value
+            else:
+                state.position[axis] += value
+            state.known[axis] = True
+        if "Z" in words:
+            state.top = max(state.top, state.position[2])
+        if self.cnc and "S" in words:
+            state.spindle_speed = words["S"]
+
+    def _set_position(self, words: dict[str, float]) -> None:
+        state = self.state
+        given = [letter for letter in _AXES if letter in words]
+        if not given and not self.cnc:
+            given = list(_AXES)
+            words = dict.fromkeys(_AXES, 0.0)
+        for letter in given:
+            axis = _AXES.index(letter)
+            state.position[axis] = self._scale(words[letter])
+            state.known[axis] = True
+
+    def _home(self, words: dict[str, float]) -> None:
+        state = self.state
+        axes = [a for a in range(3) if _AXES[a] in words] or [0, 1, 2]
+        for axis in axes:
+            state.position[axis] = 0.0
+            state.known[axis] = True
+
+    def _heater(self, code: str, words: dict[str, float]) -> None:
+        kind, _ = HEATERS[code]
+        target = words.get("S", words.get("R"))
+        if target is None:
+            return
+        name = kind
+        if kind == "tool":
+            name = f"tool{int(words.get('T', self.state.tool))}"
+        self.state.heaters[name] = target
+
+    def _cnc_mode(self, code: str, words: dict[str, float]) -> None:
+        state = self.state
+        if code in ("G54", "G55", "G56", "G57", "G58", "G59"):
+            state.coordinate_system = int(code[1:]) - 54
+        elif code in ("G93", "G94"):
+            state.inverse_time = code == "G93"
+        elif code in ("M3", "M4", "M5"):
+            state.spindle = code
+            if "S" in words:
+                state.spindle_speed = words["S"]
+        elif code in ("M7", "M8"):
+            if code not in state.coolant:
+                state.coolant.append(code)
+        elif code == "M9":
+            state.coolant = []
