@@ -9,7 +9,9 @@ box and a cylinder 16 mm across and 6 mm high (PrusaSlicer and Cura, a quarter o
 an hour each), and a flat 20 x 20 x 2 mm box (PrusaSlicer alone, the same settings
 but an end G-code that parks the head, `PARK`: `prusaslicer-2.5_flat-box.gcode`,
 ten layers, five minutes), short enough for the ETA test to print on a time-scaled
-simulator (tests/analysis/test_eta_end_to_end.py).
+simulator (tests/analysis/test_eta_end_to_end.py). Three small boxes (10 x 10 x 1
+mm, `prusaslicer-2.5_three-boxes.gcode`, five layers, with label objects and a Z
+lift on retract) are the object cancel's file (tests/objects/).
 
 CuraEngine alone leaves the header's placeholders (`;TIME:6666`, `;Filament used:
 0m`, `;MINX:...`); Cura's front end fills them from what the engine reports, and
@@ -31,6 +33,7 @@ HERE = Path(__file__).parent
 PRUSA = HERE / "prusaslicer-2.5_box-and-cylinder.gcode"
 CURA = HERE / "cura-4.13_box.gcode"
 FLAT = HERE / "prusaslicer-2.5_flat-box.gcode"
+THREE = HERE / "prusaslicer-2.5_three-boxes.gcode"
 
 Triangle = tuple[tuple[float, float, float], ...]
 
@@ -170,7 +173,22 @@ def main() -> int:
         flat = Path(folder) / "flat-box.stl"
         write_stl(flat, box(20, 20, 2))
         prusaslicer([flat], FLAT, "--end-gcode", PARK)
+        three_boxes(Path(folder))
     return 0
+
+
+def three_boxes(folder: Path) -> None:
+    """Three objects, each named by its file (`box-a.stl`...), a Z lift on retract
+    (the slicer's own hops over the other parts), no skirt: every extrusion
+    belongs to an object."""
+    models = []
+    for name in ("box-a", "box-b", "box-c"):
+        model = folder / f"{name}.stl"
+        write_stl(model, box(10, 10, 1))
+        models.append(model)
+    prusaslicer(
+        models, THREE, "--end-gcode", PARK, "--retract-lift", "0.4", "--skirts", "0"
+    )
 
 
 if __name__ == "__main__":

@@ -1,0 +1,296 @@
+"""Objects of a file as its lines stream by, and skipping a cancelled one (sans-IO).
+
+    objects = ObjectFilter(entries)       # Lines, plus ObjectMark for marker comments
+    stream = Stream(..., lines=objects)   # the stream reads through the filter
+    objects.cancel("box.stl")             # later lines of box.stl's extrusion go
+
+Rules of this module:
+
+O1. An object is named as the analysis names it (jobs/analysis/commands.py): the
+    comment `; printing object NAME [id:N copy M]` (PrusaSlicer's label objects)
+    up to `; stop printing object`, `EXCLUDE_OBJECT_START NAME=` up to
+    `EXCLUDE_OBJECT_END` (Klipper), `M486 S<n>` after `M486 A<name>` up to
+    `M486 S-1` (Marlin, RepRapFirmware). Names are stripped and cut at 200
+    characters; copies of one object share its name (and its cancel).
+O2. Comments never reach the firmware, so the reader hands marker comments in as
+    `ObjectMark` entries (`object_mark` on the raw line); everything else is a Line.
+O3. While a cancelled object's lines stream, a move that extrudes (E forward, with
+    X, Y or an arc) is not sent. If it carries Z, a `G1 Z` with its Z is sent in
+    its place (a layer change survives). In relative XYZ (G91) the move is sent
+    without its E instead, so later relative moves still land where the file says.
+O4. Everything else is sent as the file has it: travel moves, Z hops, retracts and
+    unretracts (E-only moves, and wipes: moves that draw E back), temperatures,
+    fans. So retracts and unretracts stay balanced and the slicer's travels and
+    lifts are the ones that run.
+O5. E stays the file's: E the file extruded that was not sent is the lag. Before
+    the next sent line that names E in absolute E (M82, G90), a `G92 E<the file's
+    E>` is sent if there is a lag; relative E (M83, G91) needs nothing. G92 E in
+    the file clears the lag (the line sets both).
+O6. A dropped move's F still sets the feedrate: before the next sent move without
+    its own F, `G1 F<the file's F>` is sent if the feedrate sent differs.
+O7. When a cancelled object's part ends (its stop mark, another object's start),
+    the head goes (`G0 X Y`, at the height it is at, inside the cancelled object's
+    own area, which has nothing printed at this height) to where the file left
+    it, so the slicer's own retract, lift and travel to the next object run from
+    the point the slicer planned them from: no new path crosses another part.
+O8. Lines added by the filter carry the index and file offset of the file's line
+    before the one they precede (or of the line they replace), so acknowledging
+    one never counts a line not yet sent as done; skipped lines are never
+    yielded, and count as done once a later line is acknowledged (`Stream.done`).
+O9. A cancel takes effect at the next line the filter reads: lines already read
+    (sent, in flight, in the firmware's buffer) run as they are.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from printers.streaming.streams import Line
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Iterator
+
+__all__ = ["ObjectFilter", "ObjectMark", "object_mark"]
+
+#: Longest object name kept (the analysis cuts at the same length).
+MAX_NAME = 200
+
+_PRINTING = re.compile(
+    r"^\s*;\s*printing object\s+(.+?)\s*(?:id:\d+\s+copy\s+\d+)?\s*$", re.I
+)
+_STOP = re.compile(r"^\s*;\s*stop printing object\b", re.I)
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_E_WORD = re.compile(r"\s*[Ee]\s*[-+]?(?:\d+\.?\d*|\.\d+)")
+_CODE = re.compile(r"^\s*([GMgm])\s*0*(\d+)(?![.\d])")
+_NAME = re.compile(r"NAME=(\"[^\"]*\"|'[^']*'|\S+)", re.I)
+_M486_NAME = re.compile(r"^\s*M486\s*A\s*(.+)$", re.I)
+_M486_ID = re.compile(r"^\s*M486\s*S\s*(-?\d+)", re.I)
+_XYZ = "XYZ"
+
+
+@dataclass(frozen=True, slots=True)
+class ObjectMark:
+    """A marker comment: *name* starts printing, or None: the object stops."""
+
+    name: str | None
+
+
+def object_mark(raw: bytes) -> ObjectMark | None:
+    """The marker a raw file line holds (rule O2), or None for any other line.
+
+    Cheap for the lines that are not markers: the reader calls it only for lines
+    that send nothing (comments, blank lines).
+    """
+    if b"object" not in raw:
+        return None
+    text = raw.decode("utf-8", "replace")
+    if _STOP.match(text):
+        return ObjectMark(None)
+    found = _PRINTING.match(text)
+    if found is None:
+        return None
+    return ObjectMark(_name(found.group(1)))
+
+
+def _name(text: str) -> str:
+    return text.strip().strip("\"'").strip()[:MAX_NAME]
+
+
+def _number(value: float) -> str:
+    """A coordinate as G-code writes it: no exponent, no trailing zeros."""
+    text = f"{value:.5f}".rstrip("0").rstrip(".")
+    return "0" if text in ("", "-0") else text
+
+
+class ObjectFilter:
+    """Reads a job's entries (Lines and ObjectMarks) and yields the Lines to send.
+
+    Iterate it once (it is a stream's `lines`). `cancel(name)` may be called at any
+    time between lines; `objects` lists the names seen so far, `m486_ids` the
+    `M486 S` numbers of named objects (for firmware that cancels by itself).
+    """
+
+    def __init__(
+        self, entries: Iterable[Line | ObjectMark], *, cancelled: Iterable[str] = ()
+    ) -> None:
+        self._entries = entries
+        self.cancelled: set[str] = set(cancelled)
+        self.objects: list[str] = []
+        self.m486_ids: dict[str, int] = {}
+        #: The object whose lines are streaming (None: none, or not named).
+        self.active: str | None = None
+        self._m486_names: dict[int, str] = {}
+        self._m486_current = -1
+        self._absolute = True
+        self._absolute_e = True
+        #: Where the file has put the head (absolute coordinates) and its E.
+        self._file = {"X": 0.0, "Y": 0.0, "Z": 0.0}
+        self._file_e = 0.0
+        #: Where the head is: the file's position unless moves were dropped.
+        self._head = dict(self._file)
+        self._lag = 0.0
+        self._file_f = ""
+        self._head_f = ""
+        self._skipped_any = False
+        self._prev = Line(-1, "", 0)
+
+    # -- control -----------------------------------------------------------------
+
+    def cancel(self, name: str) -> None:
+        """Skip *name*'s extrusion from the next line read on (rule O9)."""
+        self.cancelled.add(name)
+
+    @property
+    def skipping(self) -> bool:
+        return self.active is not None and self.active in self.cancelled
+
+    # -- reading -----------------------------------------------------------------
+
+    def __iter__(self) -> Iterator[Line]:
+        for entry in self._entries:
+            if isinstance(entry, ObjectMark):
+                yield from self._enter(entry.name)
+                continue
+            yield from self._line(entry)
+            self._prev = entry
+
+    def _enter(self, name: str | None) -> Iterator[Line]:
+        """An object starts (or, None, stops): leave a skipped part where the file is."""
+        if self.skipping and name != self.active:
+            yield from self._return_head()
+        self.active = name
+        if name is not None and name not in self.objects:
+            self.objects.append(name)
+
+    def _line(self, line: Line) -> Iterator[Line]:
+        text = line.text
+        code = _CODE.match(text)
+        if code is None:
+            label = _klipper_label(text)
+            if label is not None:
+                yield from self._enter(label or None)
+            yield line
+            return
+        letter, number = code.group(1).upper(), int(code.group(2))
+        if letter == "G" and number <= 3:
+            yield from self._move(line, text[code.end() :])
+            return
+        if letter == "M" and number == 486:
+            yield from self._m486(text)
+        elif letter == "G":
+            self._g_code(number, text[code.end() :])
+        elif letter == "M" and number in (82, 83):
+            self._absolute_e = number == 82
+        yield line
+
+    def _m486(self, text: str) -> Iterator[Line]:
+        named = _M486_NAME.match(text)
+        if named is not None:
+            name = _name(named.group(1))
+            if self._m486_current >= 0:
+                self._m486_names[self._m486_current] = name
+                self.m486_ids.setdefault(name, self._m486_current)
+            yield from self._enter(name)
+            return
+        number = _M486_ID.match(text)
+        if number is not None:
+            self._m486_current = int(number.group(1))
+            yield from self._enter(self._m486_names.get(self._m486_current))
+
+    def _g_code(self, number: int, args: str) -> None:
+        if number == 90:
+            self._absolute = self._absolute_e = True
+        elif number == 91:
+            self._absolute = self._absolute_e = False
+        elif number == 92:
+            given = _words(args)
+            if not given:
+                given = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+            for axis in _XYZ:
+                if axis in given:
+                    self._file[axis] = self._head[axis] = given[axis]
+            if "E" in given:
+                self._file_e, self._lag = given["E"], 0.0
+        elif number == 28:
+            # Homed axes are where the firmware says; the file and the head agree.
+            self._head = dict(self._file)
+
+    # -- moves -------------------------------------------------------------------
+
+    def _move(self, line: Line, args: str) -> Iterator[Line]:
+        given = _words(args)
+        file_before = self._file_e
+        forward = 0.0
+        if "E" in given:
+            forward = given["E"] - self._file_e if self._absolute_e else given["E"]
+            self._file_e += forward
+        if "F" in given:
+            self._file_f = _number(given["F"])
+        target = {}
+        for axis in _XYZ:
+            if axis in given:
+                value = given[axis]
+                target[axis] = value if self._absolute else self._file[axis] + value
+        self._file.update(target)
+        draws = forward > 0 and any(k in given for k in ("X", "Y", "I", "J", "R"))
+        if draws and self.skipping:
+            yield from self._drop(line, given, forward)
+            return
+        if "E" in given and self._absolute_e and self._lag:
+            yield self._added(f"G92 E{_number(file_before)}")
+            self._lag = 0.0
+        if "F" not in given and self._head_f != self._file_f and self._file_f:
+            yield self._added(f"G1 F{self._file_f}")
+        self._head.update(target)
+        if "F" in given:
+            self._head_f = self._file_f
+        yield line
+
+    def _drop(
+        self, line: Line, given: dict[str, float], forward: float
+    ) -> Iterator[Line]:
+        """Rule O3: an extruding move of a cancelled object."""
+        self._lag += forward
+        self._skipped_any = True
+        if not self._absolute:
+            text = _E_WORD.sub("", line.text, count=1)
+            # Everything but E moves as the file says (relative moves add up).
+            self._head.update(self._file)
+            if "F" in given:
+                self._head_f = self._file_f
+            yield Line(line.index, text, line.end_offset)
+            return
+        if "Z" in given and self._head["Z"] != self._file["Z"]:
+            self._head["Z"] = self._file["Z"]
+            yield Line(line.index, f"G1 Z{_number(self._file['Z'])}", line.end_offset)
+
+    def _return_head(self) -> Iterator[Line]:
+        """Rule O7: to where the file left the head, inside the cancelled object."""
+        if not self._absolute:
+            return
+        moved = [a for a in ("X", "Y") if self._head[a] != self._file[a]]
+        if moved:
+            words = " ".join(f"{a}{_number(self._file[a])}" for a in ("X", "Y"))
+            yield self._added(f"G0 {words}")
+            self._head.update({a: self._file[a] for a in ("X", "Y")})
+
+    def _added(self, text: str) -> Line:
+        """A line the filter adds before the next one read (rule O8)."""
+        return Line(self._prev.index, text, self._prev.end_offset)
+
+
+def _klipper_label(text: str) -> str | None:
+    """EXCLUDE_OBJECT_START NAME=x -> "x", EXCLUDE_OBJECT_END -> "", else None."""
+    head = text.lstrip()[:20].upper()
+    if head == "EXCLUDE_OBJECT_START":
+        found = _NAME.search(text)
+        return _name(found.group(1)) if found is not None else None
+    if head.startswith("EXCLUDE_OBJECT_END"):
+        return ""
+    return None
+
+
+def _words(args: str) -> dict[str, float]:
+    return {letter.upper(): float(value) for letter, value in _WORD.findall(args)}
