@@ -377,4 +377,5 @@ def running_job(printer_id: int) -> Job | None:
 
 
 # A model kept in its own module: imported here so Django finds it.
+from jobs.history import HistoryEntry  # noqa: E402, F401
 from jobs.plans import ResumePlan  # noqa: E402, F401

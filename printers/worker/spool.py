@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 from django.db.models import F
 from django.utils import timezone
 
+from jobs import history
 from jobs.gcode import command_of, iter_commands
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
@@ -48,6 +49,7 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
             finished_at=timezone.now(),
             **progress,
         )
+        history.record_run(job.pk)
         broadcast.publisher().job(job.pk)
     return jobs
 
@@ -138,6 +140,7 @@ def finish(stream: Stream) -> Job.State:
         bytes_acked=stream.bytes_acked,
         finished_at=timezone.now(),
     )
+    history.record_run(stream.ref)
     broadcast.publisher().job(stream.ref)
     return state
 
@@ -147,6 +150,7 @@ def fail_job(job: Job, message: str) -> None:
     Job.objects.filter(pk=job.pk).update(
         state=Job.State.FAILED, message=message, finished_at=timezone.now()
     )
+    history.record_run(job.pk)
     broadcast.publisher().job(job.pk)
 
 

@@ -42,6 +42,7 @@ def _register() -> None:
 #: the seed's `/printer/<call>/<slug>`.
 ROUTER_MODULES: list[str] = [
     "moonraker",
+    "moonraker_history",
     "octoprint",
     "octoprint_control",
     "octoprint_jobs",
@@ -56,5 +57,6 @@ ROUTER_MODULES: list[str] = [
     "repetier",
     "uploads",
     "history",
+    "print_history",
 ]
 _register()

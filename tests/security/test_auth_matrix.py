@@ -21,8 +21,9 @@ import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 from django.db import transaction
 from django.test import Client
+from django.utils import timezone
 
-from jobs import analysing, uploads
+from jobs import analysing, history, uploads
 from jobs.analysis.thumbnails import png_encode
 from jobs.models import Job
 from jobs.services import enqueue_job
@@ -39,6 +40,7 @@ SAFE = ("GET", "HEAD", "OPTIONS")
 class Endpoint:
     method: str
     path: str  # {stored} {done} {file} {upload} {own_key} {app_token} {user_token}
+    # {entry}
     role: int
     #: "p": acts on printer p (a key bound to q is refused); "any": a role anywhere
     #: will do; "unbound": a role anywhere, but a key bound to a printer is refused.
@@ -107,6 +109,9 @@ ENDPOINTS = [
     ep("POST", "/p/p/printer/print/resume", OPERATOR, state="paused"),
     ep("POST", "/p/p/printer/print/cancel", OPERATOR, state="printing"),
     ep("POST", "/p/p/printer/emergency_stop", OPERATOR),
+    ep("GET", "/p/p/server/history/list", VIEWER),
+    ep("GET", "/p/p/server/history/job?uid={entry}", VIEWER),
+    ep("GET", "/p/p/server/history/totals", VIEWER),
     # App-key pairing (Cura) and the user's keys.
     ep("GET", "/plugin/appkeys/probe", PUBLIC, scope="any"),
     ep("POST", "/plugin/appkeys/request", PUBLIC, scope="any", body='json:{"app": "Cura"}'),
@@ -138,6 +143,10 @@ ENDPOINTS = [
     ep("POST", "/printer/job/p?a=upload", OPERATOR, body="file"),
     ep("GET", "/printer/state/p", VIEWER),
     ep("GET", "/printer/temperatures/p", VIEWER),
+    # Print history: each caller reads the printers it may view.
+    ep("GET", "/printer/history", VIEWER, scope="any"),
+    ep("GET", "/printer/history?format=csv", VIEWER, scope="any"),
+    ep("GET", "/printer/history/totals?group=printer", VIEWER, scope="any"),
     ep("POST", "/printer/connect/p", OPERATOR),
     ep("POST", "/printer/disconnect/p", OPERATOR),
     ep("POST", "/printer/bedclear/p", OPERATOR, state="waitstart"),
@@ -261,7 +270,10 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
     stored = enqueue_job(p, world.source, name="cube.gcode", queue=False)
     analysing.run(stored.analysis_id)  # as the Celery worker would (its thumbnail)
     done = enqueue_job(p, world.source, name="done.gcode", queue=False)
-    Job.objects.filter(pk=done.pk).update(state=Job.State.COMPLETED)
+    Job.objects.filter(pk=done.pk).update(
+        state=Job.State.COMPLETED, started_at=timezone.now(), finished_at=timezone.now()
+    )
+    entry = history.record_run(done.pk)
     if state in ("printing", "paused"):
         running = enqueue_job(p, world.source, name="running.gcode")
         Job.objects.filter(pk=running.pk).update(state=state)
@@ -287,6 +299,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         "own_key": issue_key(user, "spare")[0].pk,
         "app_token": request.app_token,
         "user_token": request.user_token,
+        "entry": entry.uid if entry else "",
     }
 
 
