@@ -233,8 +233,9 @@ class ObjectFilter:
             if axis in given:
                 value = given[axis]
                 target[axis] = value if self._absolute else self._file[axis] + value
+        moves = any(target.get(a, self._file[a]) != self._file[a] for a in "XY")
         self._file.update(target)
-        draws = forward > 0 and any(k in given for k in ("X", "Y", "I", "J", "R"))
+        draws = forward > 0 and (moves or any(k in given for k in "IJR"))
         if draws and self.skipping:
             yield from self._drop(line, given, forward)
             return

@@ -9,12 +9,17 @@ from django.db.models import F
 from django.utils import timezone
 
 from jobs import history
-from jobs.gcode import command_of, iter_commands
+from jobs.bgcode import is_bgcode
+from jobs.gcode import command_of, file_lines
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
 from printers.streaming import Line, Stream, StreamType
+from printers.streaming.objects import ObjectFilter, ObjectMark, object_mark
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from pathlib import Path
+
     from printers.worker.journal import Entry
 
 _OUTCOME_STATE = {
@@ -96,11 +101,15 @@ def stream_for(job: Job) -> Stream:
     preamble = [
         Line(start - 1, text, job.start_offset) for text in _commands(job.preamble)
     ]
-    file = iter_commands(job.path, start_index=start, start_offset=job.start_offset)
-    commands = (Line(c.index, c.text, c.end_offset) for c in file)
+    file = _file_entries(job.path, start_index=start, start_offset=job.start_offset)
+    # The stream reads through the object filter: the worker finds it there
+    # (`stream.lines`) to cancel an object mid-print (printers/streaming/objects.py).
+    objects = ObjectFilter(
+        itertools.chain(preamble, file), cancelled=job.cancelled_objects or ()
+    )
     stream = Stream(
         StreamType.SD_FILE_STREAM,
-        itertools.chain(preamble, commands),
+        objects,
         name=job.name,
         ref=job.pk,
         origin=job.origin,
@@ -108,6 +117,35 @@ def stream_for(job: Job) -> Stream:
     stream.done = stream.reached = start
     stream.bytes_acked = job.start_offset
     return stream
+
+
+def _file_entries(
+    path: Path, *, start_index: int, start_offset: int
+) -> Iterator[Line | ObjectMark]:
+    """The file's commands as Lines (as `jobs.gcode.iter_commands` numbers them),
+    and its object marker comments, which iter_commands drops, as ObjectMarks.
+
+    Only lines that send nothing are looked at for a marker, with one bytes search
+    each, so the stream reads as fast as before.
+    """
+    index = 0
+    if start_offset > 0 and _text_file(path):
+        index = start_index
+    else:
+        start_offset = 0
+    for raw, offset in file_lines(path, start=start_offset):
+        text = command_of(raw)
+        if text:
+            if index >= start_index:
+                yield Line(index, text, offset)
+            index += 1
+        elif index >= start_index and (mark := object_mark(raw)) is not None:
+            yield mark
+
+
+def _text_file(path: Path) -> bool:
+    with path.open("rb") as handle:
+        return not is_bgcode(handle.read(4))
 
 
 def _commands(text: str) -> list[str]:
