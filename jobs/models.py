@@ -269,7 +269,8 @@ class Job(models.Model):
         `elapsed` and `eta` are seconds (None when unknown); `eta_origin` says how
         the ETA was made ("mixed-analysis": the analysis corrected by the measured
         pace; "linear": elapsed over bytes); `analysis` is the file's analysis
-        (None for a print from the SD card).
+        (None for a print from the SD card); `objects` are the file's objects,
+        each with `cancelled` (printhost/api/objects.py).
         """
         elapsed = self.elapsed_seconds()
         timing = self.timing()
@@ -300,7 +301,17 @@ class Job(models.Model):
             "elapsed": None if elapsed is None else round(elapsed, 1),
             **timing,
             "analysis": self.analysis_dict(),
+            "objects": [
+                {"name": name, "cancelled": name in self.cancelled_objects}
+                for name in self.objects_list()
+            ],
         }
+
+    def objects_list(self) -> list[str]:
+        """The file's objects as its analysis names them ([] before it finishes)."""
+        if not self.analysis_id or self.analysis is None:
+            return []
+        return list(self.analysis.summary.get("objects") or [])
 
     def analysis_dict(self) -> dict[str, Any] | None:
         """The file's analysis with the job's own thumbnail addresses."""

@@ -104,6 +104,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--ok-before-resend", action="store_true",
         help="Marlin: send a rejected line's ok before its Resend",
     )  # fmt: skip
+    machine.add_argument(
+        "--cancel-objects", action="store_true",
+        help="Marlin: CANCEL_OBJECTS (M486), reported as Cap:CANCEL_OBJECTS:1",
+    )  # fmt: skip
     faults = parser.add_argument_group("faults")
     faults.add_argument("--corrupt", type=float, default=0.0, metavar="SHARE")
     faults.add_argument("--seed", type=int)
@@ -298,4 +302,5 @@ def _firmware_with(
         faults=faults,
         on_execute=on_execute,
         now=now,
+        cancel_objects=args.cancel_objects,
     )

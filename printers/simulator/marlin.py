@@ -19,6 +19,7 @@ from printers.simulator import _marlin_text as text
 from printers.simulator._marlin_dialect import DIALECTS
 from printers.simulator._marlin_lines import CODE, Command, LineInput
 from printers.simulator._marlin_machine import MarlinMachine, words
+from printers.simulator._marlin_objects import CancelObjects
 from printers.simulator._marlin_pause import FilamentChange
 from printers.simulator._marlin_sd import SdCard
 from printers.simulator._rx import LineReader
@@ -62,6 +63,7 @@ class MarlinFirmware(LineInput):
         faults: Faults | None = None,
         on_execute: Callable[[str], None] | None = None,
         now: float = 0.0,
+        cancel_objects: bool = False,
     ) -> None:
         self.rx_buffer = rx_buffer
         self.bufsize = bufsize
@@ -81,6 +83,9 @@ class MarlinFirmware(LineInput):
         self.echo_lines = echo_lines
         self.faults = faults
         self.on_execute = on_execute
+        #: CANCEL_OBJECTS: M486 (_marlin_objects), reported in M115.
+        self.cancel_objects = cancel_objects
+        self.objects: CancelObjects | None = None
         self.executed_count = 0
         self._out: list[str] = []
         self._reader = LineReader(rx_buffer, self._on_line, self._has_slot)
@@ -175,6 +180,8 @@ class MarlinFirmware(LineInput):
         )
         if self.sd is not None:
             self.sd.reset()
+        if self.cancel_objects:
+            self.objects = CancelObjects(self._print)
         self._handlers = self._handler_table()
         if banner == "noise":
             self._out.append(text.BOOT_NOISE)
@@ -355,6 +362,8 @@ class MarlinFirmware(LineInput):
         )
         if self.sd is not None:
             table.update(self.sd.handlers())
+        if self.objects is not None:
+            self.objects.wrap(table)
         return table
 
     def _m110(self, args: str, now: float) -> None:
@@ -376,6 +385,8 @@ class MarlinFirmware(LineInput):
                 emergency_parser=self.emergency_parser, sd_card=self.sd is not None
             )
         )
+        if self.objects is not None:
+            self._print("Cap:CANCEL_OBJECTS:1")
 
     def _m155(self, args: str, now: float) -> None:
         interval = words(args).get("S", 0.0)

@@ -117,6 +117,8 @@ class ObjectFilter:
     ) -> None:
         self._entries = entries
         self.cancelled: set[str] = set(cancelled)
+        #: Objects the firmware was told to cancel (M486 P): their lines go as is.
+        self.firmware_cancelled: set[str] = set()
         self.objects: list[str] = []
         self.m486_ids: dict[str, int] = {}
         #: The object whose lines are streaming (None: none, or not named).

@@ -288,6 +288,9 @@ class PrinterWorker(Reactions):
         self.halted = ""
         self.autoreport = False
         self.emergency_parser, self.expect_reset = None, False
+        # Capabilities are the connected firmware's: M115 reports them again (a
+        # Cap:CANCEL_OBJECTS from an earlier firmware must not outlive it).
+        self.status.update(capabilities={})
         self.prompts.clear()
         self.sd.reset()
         self.note(f"connected to {self.printer.port} at {self.printer.baud} baud")

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 from django.utils import timezone
 
 from jobs.gcode import BadGcode, iter_commands
+from jobs.models import Job
 from printers.models import QueuedCommand
 from printers.streaming import Line, Stream, StreamType, lines_from_text
 from printers.streaming.esp import (
@@ -17,6 +18,7 @@ from printers.streaming.esp import (
     esp_reply,
     parse_esp,
 )
+from printers.streaming.objects import ObjectFilter
 from printers.worker.emergency import after_m112
 from printers.worker.prompts import DISPLAY_HINT
 
@@ -31,6 +33,9 @@ RowState = QueuedCommand.State
 _GRBL_REALTIME = {"!", "~", "?", "\x18", "\x85", "\x84"}
 #: Marlin's emergency commands as GRBL realtime bytes: stop = feed hold + soft reset.
 _GRBL_EMERGENCY = {"M112": ["!", "\x18"], "M410": ["!"]}
+#: `cancel_object:<job id>`: apply the job's `cancelled_objects` to its stream
+#: (written by printhost/api/objects.py).
+CANCEL_OBJECT = "cancel_object"
 
 
 class RequestPoller:
@@ -113,6 +118,8 @@ class RequestPoller:
         if action.startswith(f"{QueuedCommand.Action.SD_DELETE}:"):
             error = worker.sd.delete(action.partition(":")[2])
             return f"error: {error}" if error else "ok"
+        if action.startswith(f"{CANCEL_OBJECT}:"):
+            return self._cancel_objects(action.partition(":")[2], who)
         match action:
             case QueuedCommand.Action.PAUSE:
                 error = host.request_pause()
@@ -136,6 +143,43 @@ class RequestPoller:
                 error = f"unknown action {action!r}"
         worker.update_state()
         return f"error: {error}" if error else "ok"
+
+    def _cancel_objects(self, job_id: str, who: str) -> str:
+        """Cancel the objects the job's row names, in its running stream.
+
+        1. Find the job's stream and its object filter (none: the job is not
+           streaming; the row keeps the intent, nothing else happens).
+        2. For each newly cancelled object: if the firmware cancels objects itself
+           (`firmware_cancels`) and the file numbered it with `M486 S`, send
+           `M486 P<n>` ahead of the stream (the script queue); else the filter
+           skips its extrusion from the next line it reads.
+        """
+        worker = self.worker
+        stream = worker.host.current_stream
+        objects = stream.lines if stream is not None else None
+        if stream is None or str(stream.ref) != job_id:
+            return "error: the job is not streaming"
+        if not isinstance(objects, ObjectFilter):
+            return "error: the job's stream reads no objects"
+        wanted = Job.objects.filter(pk=stream.ref).values_list(
+            "cancelled_objects", flat=True
+        )
+        firmware = firmware_cancels(worker.status.fields)
+        done = []
+        for name in wanted.first() or []:
+            if name in objects.cancelled or name in objects.firmware_cancelled:
+                continue
+            number = objects.m486_ids.get(name)
+            if firmware and number is not None:
+                objects.firmware_cancelled.add(name)
+                worker.submit_internal(f"M486 P{number}")
+                done.append(f"{name} (M486 P{number})")
+            else:
+                objects.cancel(name)
+                done.append(f"{name} (skipped by the host)")
+        if done:
+            worker.note(f"job {job_id}: cancelled {', '.join(done)}{who}")
+        return "ok"
 
     def _answer_prompt(self, choice: str, who: str) -> str:
         """M876 S<n> for the shown host prompt, out of band like M112.
@@ -256,6 +300,20 @@ class RequestPoller:
             reply=reply,
             done_at=timezone.now(),
         )
+
+
+def firmware_cancels(fields: dict[str, object]) -> bool:
+    """Whether the connected firmware cancels objects itself (M486 P).
+
+    Marlin's M115 reports no capability for CANCEL_OBJECTS (a build option, off by
+    default), so a Marlin build is trusted only if it says `Cap:CANCEL_OBJECTS:1`
+    (the simulator's `--cancel-objects`, a fork that adds the line);
+    RepRapFirmware always has M486. Anything else: the host skips the lines.
+    """
+    caps = fields.get("capabilities")
+    if isinstance(caps, dict) and caps.get("CANCEL_OBJECTS") is True:
+        return True
+    return "reprapfirmware" in str(fields.get("firmware_name", "")).lower()
 
 
 def _row_id(stream: Stream) -> int | None:

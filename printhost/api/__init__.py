@@ -58,5 +58,6 @@ ROUTER_MODULES: list[str] = [
     "uploads",
     "history",
     "print_history",
+    "objects",
 ]
 _register()

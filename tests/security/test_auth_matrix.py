@@ -40,7 +40,7 @@ SAFE = ("GET", "HEAD", "OPTIONS")
 class Endpoint:
     method: str
     path: str  # {stored} {done} {file} {upload} {own_key} {app_token} {user_token}
-    # {entry}
+    # {entry} {running}
     role: int
     #: "p": acts on printer p (a key bound to q is refused); "any": a role anywhere
     #: will do; "unbound": a role anywhere, but a key bound to a printer is refused.
@@ -162,6 +162,8 @@ ENDPOINTS = [
     ep("POST", "/printer/analysis/p/{stored}/again", OPERATOR),
     ep("GET", "/printer/thumbnail/p/{stored}/16x16.png", VIEWER),
     ep("GET", "/printer/toolpath/p/{stored}/0", VIEWER),
+    ep("GET", "/printer/objects/p?id={stored}", VIEWER),
+    ep("POST", "/printer/objects/p", OPERATOR, body='jsonf:{{"id": {running}, "object": "a"}}', state="printing"),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
     ep("GET", "/printer/api/p?a=listModelGroups", VIEWER),
     ep("POST", "/printer/api/p?a=listModelGroups", VIEWER),
@@ -260,7 +262,8 @@ def world(db: None, storage: Path, tmp_path: Path, django_user_model: type) -> W
     thumbnail = (
         f"; thumbnail begin 16x16 {len(picture)}\n; {picture}\n; thumbnail end\n"
     )
-    source.write_text(thumbnail + "G28\nG1 X1\nG1 Z0.2\nG1 X5 E1\n")
+    objects = "; printing object a\nG1 X5 E1\n; printing object b\nG1 X9 E2\n"
+    source.write_text(thumbnail + "G28\nG1 X1\nG1 Z0.2\n" + objects)
     return World(p, q, users, keys, source)
 
 
@@ -274,6 +277,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         state=Job.State.COMPLETED, started_at=timezone.now(), finished_at=timezone.now()
     )
     entry = history.record_run(done.pk)
+    running = None
     if state in ("printing", "paused"):
         running = enqueue_job(p, world.source, name="running.gcode")
         Job.objects.filter(pk=running.pk).update(state=state)
@@ -300,6 +304,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         "app_token": request.app_token,
         "user_token": request.user_token,
         "entry": entry.uid if entry else "",
+        "running": running.pk if running else "",
     }
 
 
