@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 from django.contrib import admin, messages
 
 from jobs import analysing
+from jobs.history import HistoryEntry
 from jobs.models import ACTIVE_STATES, FileAnalysis, Job
 from jobs.services import delete_job_file, request_action
 from printers.models import Printer
@@ -184,3 +185,53 @@ class FileAnalysisAdmin(admin.ModelAdmin):
 
     def has_add_permission(self, request: HttpRequest) -> bool:
         return False
+
+
+@admin.register(HistoryEntry)
+class HistoryEntryAdmin(admin.ModelAdmin):
+    """Every ended run, read-only: the history is a record, not something to edit."""
+
+    list_display = [
+        "id",
+        "job_number",
+        "name",
+        "printer_slug",
+        "user_name",
+        "outcome",
+        "started_at",
+        "finished_at",
+        "duration",
+        "filament_m",
+        "layers_reached",
+    ]
+    list_filter = ["outcome", "printer", "user", "kind", "started_at"]
+    search_fields = ["name", "sha256", "printer_slug", "user_name", "origin", "message"]
+    date_hierarchy = "started_at"
+    list_select_related = ["printer"]
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False
+
+    def has_change_permission(
+        self, request: HttpRequest, obj: HistoryEntry | None = None
+    ) -> bool:
+        return False
+
+    def has_delete_permission(
+        self, request: HttpRequest, obj: HistoryEntry | None = None
+    ) -> bool:
+        return False
+
+    @admin.display(description="print time", ordering="print_seconds")
+    def duration(self, entry: HistoryEntry) -> str:
+        return _duration(entry.print_seconds)
+
+    @admin.display(description="filament", ordering="filament_used")
+    def filament_m(self, entry: HistoryEntry) -> str:
+        if entry.filament_used is None:
+            return "-"
+        return f"{entry.filament_used / 1000:.2f} m"
+
+    @admin.display(description="layers")
+    def layers_reached(self, entry: HistoryEntry) -> str:
+        return f"{entry.layer} / {entry.layers}" if entry.layers else "-"

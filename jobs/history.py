@@ -70,6 +70,11 @@ class ResumedFrom(TypedDict):
     exists: bool
 
 
+class RunLink(TypedDict):
+    job: int
+    exists: bool
+
+
 class RunDict(TypedDict):
     """One run as every printhost client sees it (API, CSV, the history page)."""
 
@@ -90,7 +95,8 @@ class RunDict(TypedDict):
     outcome: str
     message: str
     resumed_from: ResumedFrom | None
-    resumed_by: list[int]
+    #: The runs that resumed this one.
+    resumed_by: list[RunLink]
     print_seconds: float
     filament_used: float | None
     layer: int | None
@@ -182,7 +188,7 @@ class HistoryEntry(models.Model):
         return f"{self.pk:06X}"
 
     def as_dict(
-        self, *, existing: set[int] | frozenset[int], resumed_by: list[int]
+        self, *, existing: set[int] | frozenset[int], resumed_by: list[RunLink]
     ) -> RunDict:
         """The entry; *existing* holds the job numbers whose Job row still exists."""
         resumed: ResumedFrom | None = None

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator
     from datetime import datetime
 
-    from jobs.history import RunDict
+    from jobs.history import RunDict, RunLink
 
 #: What `outcome` may filter on: an outcome, or "resumed" (runs that resume another).
 OUTCOME_FILTERS = (*Outcome.values, "resumed")
@@ -185,9 +185,6 @@ def as_dicts(items: Iterable[HistoryEntry | Job]) -> list[RunDict]:
     items = list(items)
     numbers = {_number(item) for item in items}
     origins = {origin for item in items if (origin := _resumed_from(item)) is not None}
-    existing = set(
-        Job.objects.filter(pk__in=numbers | origins).values_list("pk", flat=True)
-    )
     later: dict[int, set[int]] = {}
     resumes = itertools.chain(
         HistoryEntry.objects.filter(resumed_from__in=numbers).values_list(
@@ -199,14 +196,22 @@ def as_dicts(items: Iterable[HistoryEntry | Job]) -> list[RunDict]:
     )
     for origin, number in resumes:
         later.setdefault(origin, set()).add(number)
+    linked = numbers | origins | {n for runs in later.values() for n in runs}
+    existing = set(Job.objects.filter(pk__in=linked).values_list("pk", flat=True))
+
+    def links(number: int) -> list[RunLink]:
+        return [
+            {"job": n, "exists": n in existing} for n in sorted(later.get(number, ()))
+        ]
+
     out: list[RunDict] = []
     for item in items:
         if isinstance(item, HistoryEntry):
-            resumed_by = sorted(later.get(item.job_number, ()))
+            resumed_by = links(item.job_number)
             out.append(item.as_dict(existing=existing, resumed_by=resumed_by))
         else:
             run = running_dict(item, existing=existing)
-            run["resumed_by"] = sorted(later.get(item.pk, ()))
+            run["resumed_by"] = links(item.pk)
             out.append(run)
     return out
 

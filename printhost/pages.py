@@ -231,6 +231,15 @@ def account(request: HttpRequest) -> HttpResponse:
     )
 
 
+@login_required
+def history(request: HttpRequest) -> HttpResponse:
+    """Every run of the printers the user may view: totals, filters, CSV export."""
+    from printhost.history_page import history_context
+
+    context = history_context(caller_of_page(request), request.GET)
+    return render(request, "history.html", context)
+
+
 def denied(request: HttpRequest, exception: Exception | None = None) -> HttpResponse:
     """handler403: Django's own refusals get the styled page too."""
     return forbidden(request, str(exception or "") or "you may not see this page")

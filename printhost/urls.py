@@ -21,6 +21,7 @@ urlpatterns = [
     path("printers/<slug:slug>/", pages.printer_page, name="printer"),
     path("jobs/<int:job_id>/", pages.job_page, name="job"),
     path("account/", pages.account, name="account"),
+    path("history/", pages.history, name="history"),
     # printhost runs without a front web server: daphne serves the few static
     # files itself, found by the staticfiles finders (no collectstatic step).
     re_path(r"^static/(?P<path>.+)$", serve_static, {"insecure": True}),

@@ -45,9 +45,10 @@ from printhost.api.common import caller_of, envelope, parse_int
 from printhost.models import Role
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Iterable, Mapping
 
     from jobs.history import RunDict
+    from printhost.access import Caller
 
 router = Router(tags=["print history"])
 
@@ -85,13 +86,16 @@ def parse_moment(value: str | None, name: str) -> datetime | None:
 
 
 def query_of(request: HttpRequest) -> HistoryQuery:
-    """The history the caller may read, narrowed by the request's filters.
+    """The history the caller may read, narrowed by the request's filters."""
+    return query_from(caller_of(request), request.GET)
+
+
+def query_from(caller: Caller, params: Mapping[str, str]) -> HistoryQuery:
+    """The history *caller* may read, narrowed by *params* (the API's filters).
 
     404 for an unknown printer, 403 for one the caller may not view, 400 for a
     filter that makes no sense.
     """
-    caller = caller_of(request)
-    params = request.GET
     readable = frozenset(p.pk for p in caller.printers(Role.VIEWER))
     orphans = caller.bound_printer_id is None and caller.can(None, Role.VIEWER)
     if not readable and not orphans:

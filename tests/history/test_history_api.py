@@ -84,7 +84,7 @@ def test_a_resumed_run_says_which_run_and_line_it_resumed_and_is_named_back(farm
         "exists": True,
     }
     assert resumed["start_line"] > 0
-    assert interrupted["resumed_by"] == [runs["resumed"].pk]
+    assert interrupted["resumed_by"] == [{"job": runs["resumed"].pk, "exists": True}]
     assert (resumed["layer"], resumed["layers"]) == (10, 10)
     assert interrupted["layer"] == 6
 
