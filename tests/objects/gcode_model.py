@@ -38,6 +38,9 @@ class Machine:
     #: E moved by moves that do not extrude (retracts, unretracts, wipes).
     other_e: float = 0.0
     active: str | None = None
+    #: M486 as Marlin's CANCEL_OBJECTS runs it: the running number, the cancelled.
+    m486: int = -1
+    m486_cancelled: set[int] = field(default_factory=set)
 
     def run(self, command: str) -> None:
         text = command.strip()
@@ -55,7 +58,14 @@ class Machine:
             for axis, value in (words or dict.fromkeys("XYZE", 0.0)).items():
                 if axis in self.pos:
                     self.pos[axis] = value
+        elif head == "M486":
+            if "S" in words:
+                self.m486 = int(words["S"])
+            if "P" in words:
+                self.m486_cancelled.add(int(words["P"]))
         elif head in ("G0", "G1", "G2", "G3"):
+            if self.m486 in self.m486_cancelled:  # the firmware keeps X, Y, Z
+                words = {k: v for k, v in words.items() if k in "EF"}
             self._move(words)
 
     def _move(self, words: dict[str, float]) -> None:
