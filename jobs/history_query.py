@@ -240,7 +240,7 @@ def totals(query: HistoryQuery, group: str | None = None) -> dict[str, Any]:
         rows = (
             entries.order_by()
             .values(field)
-            .annotate(label=Max("name" if group == "file" else field), **_FIGURES)
+            .annotate(label=Max(_LABELS[group]), **_FIGURES)
             .order_by(field)
         )
         for row in rows:
@@ -250,6 +250,8 @@ def totals(query: HistoryQuery, group: str | None = None) -> dict[str, Any]:
     return {"group": group, "overall": overall, "groups": groups}
 
 
+#: What names a group to people: the printer's name, the user, the file's name.
+_LABELS = {"printer": "printer_name", "user": "user_name", "file": "name"}
 _FIGURES = {
     "jobs": Count("id"),
     "completed": Count("id", filter=Q(outcome=Outcome.COMPLETED)),

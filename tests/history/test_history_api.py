@@ -244,7 +244,7 @@ def test_totals_per_printer_user_and_file_count_their_own_runs(farm, runs):
     assert (printers["p"]["jobs"], printers["p"]["completed"]) == (5, 2)
     assert printers["p"]["success_rate"] == 0.4
     assert (printers["q"]["jobs"], printers["q"]["success_rate"]) == (1, 1.0)
-    assert printers["q"]["label"] == "q"
+    assert printers["q"]["label"] == "Prusa Q"
     assert (users["alice"]["jobs"], users["bob"]["jobs"]) == (5, 1)
     # Every run printed the same file (same SHA-256), under two names.
     assert len(files) == 1 and files[0]["jobs"] == 6
