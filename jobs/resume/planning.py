@@ -27,7 +27,9 @@ from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
 from jobs.paths import PathRefused
 from jobs.resume.preamble import ResumePoint, build_preamble
 from jobs.resume.state import MachineState, StateReader
+from jobs.services import request_action
 from printers import broadcast
+from printers.models import QueuedCommand
 from printers.worker.spool import next_position
 
 if TYPE_CHECKING:
@@ -268,5 +270,8 @@ def start_plan(
         locked.state = ResumePlan.State.STARTED
         locked.resumed = resumed
         locked.save(update_fields=["state", "resumed"])
+        # Starting a resume is the operator saying what is on the bed: the part
+        # this run continues. The worker's waitstart (kept since the stop) ends.
+        request_action(printer, QueuedCommand.Action.BED_CLEAR, origin=origin)
     broadcast.publisher().job(resumed.pk)
     return resumed

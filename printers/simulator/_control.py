@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING
 
+from printers.simulator._record import state_text
+
 if TYPE_CHECKING:
     from printers.simulator.runner import Simulator
 
@@ -132,4 +134,5 @@ def _stats(sim: Simulator) -> dict[str, object]:
         "garbled_bytes": sim.faults.garbled,
         "dropped_oks": sim.faults.dropped_oks,
         "closed": sim.closed,
+        "state": state_text(firmware),
     }

@@ -37,3 +37,13 @@ class Recorder:
     def close(self) -> None:
         self.flush(0.0, force=True)
         self._file.close()
+
+
+def state_text(firmware: object) -> str:
+    """The firmware's state as `--record-state` and `stats` give it: X Y Z E for
+    Marlin; GRBL's work position and `$G` modes."""
+    gcode = getattr(firmware, "gcode", None)
+    if gcode is not None:
+        work = [p - o for p, o in zip(gcode.position, gcode.work_offset(), strict=True)]
+        return " ".join(f"{v:.4f}" for v in work) + " " + gcode.modes()
+    return " ".join(f"{v:.5f}" for v in firmware.machine.position)  # type: ignore[attr-defined]

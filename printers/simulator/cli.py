@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from printers.simulator._marlin_dialect import DIALECTS
+from printers.simulator._record import state_text
 from printers.simulator.faults import RESET_BANNERS, FaultConfig, Faults
 from printers.simulator.grbl import GrblFirmware
 from printers.simulator.marlin import MarlinFirmware
@@ -54,8 +55,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ports.add_argument(
         "--record-state",
         action="store_true",
-        help="with each recorded command, the state it found (tab, `@`, position: "
-        "X Y Z E for Marlin; the work position and `$G` modes for GRBL)",
+        help="with each recorded command, a tab, `@` and a state: for Marlin the "
+        "position (X Y Z E) it found; for GRBL the work position and `$G` modes it "
+        "left (GRBL records a line once it ran)",
     )
     ports.add_argument("--control", type=Path, help="Unix socket for control commands")
     machine = parser.add_argument_group("firmware")
@@ -253,20 +255,11 @@ def _firmware(
         built: list[MarlinFirmware | GrblFirmware] = []
 
         def record_with_state(text: str) -> None:
-            recorder.add(f"{text}\t@ {_state(built[0])}")
+            recorder.add(f"{text}\t@ {state_text(built[0])}")
 
         built.append(_firmware_with(args, faults, record_with_state))
         return built[0]
     return _firmware_with(args, faults, on_execute)
-
-
-def _state(firmware: MarlinFirmware | GrblFirmware) -> str:
-    """What `--record-state` writes after a command: the state it found."""
-    if isinstance(firmware, GrblFirmware):
-        gcode = firmware.gcode
-        work = [p - o for p, o in zip(gcode.position, gcode.work_offset(), strict=True)]
-        return " ".join(f"{v:.4f}" for v in work) + " " + gcode.modes()
-    return " ".join(f"{v:.5f}" for v in firmware.machine.position)
 
 
 def _firmware_with(

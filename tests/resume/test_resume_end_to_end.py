@@ -1,0 +1,212 @@
+"""Resume over real ptys: a worker is SIGKILLed mid-print, the printer loses power, and
+the resumed run sends the preamble then the rest of the file, nothing lost or
+repeated, with the machine where an uninterrupted run would be at that line."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING
+
+import pytest
+
+from jobs.gcode import command_of
+from printers.sample_gcode import commands_of
+from printers.worker.journal import Entry, Journal
+from tests.conftest import HOST_COMMANDS, ROOT, Sim, wait_for
+from tests.hosts import Host
+from tests.resume.prints import cnc_pocket, layered_print
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+pytestmark = pytest.mark.slow
+
+#: The firmware stops (busy for good) before this command, counted from its start.
+STALL_AT = 700
+
+
+def _worker(host: Host) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "manage.py", "run_printer", "p0"], cwd=ROOT, env=host.env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def _stats(sim: Sim) -> dict:
+    return json.loads(sim.control("stats").removeprefix("ok "))
+
+
+def _lease_expired(host: Host) -> bool:
+    (expires,) = host.query("SELECT lease_expires_at FROM printers_printer")[0]
+    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
+    return expires is None or str(expires)[:26] < now
+
+
+def _job_commands(sim: Sim) -> list[tuple[str, str]]:
+    """(command, the state it found) of every command but the host's own."""
+    out = []
+    for line in sim.recorded():
+        text, _, state = line.partition("\t@ ")
+        if not text.startswith(HOST_COMMANDS):
+            out.append((text, state))
+    return out
+
+
+class Interrupted:
+    """A job printed until the firmware stalls, its worker SIGKILLed, the printer
+    reset (a power cut: position, heaters and modes gone), the job interrupted."""
+
+    def __init__(self, tmp_path: Path, sim: Sim, text: str, firmware: str) -> None:
+        self.sim, self.text = sim, text
+        host = self.host = Host(tmp_path)
+        host.env["PRINTHOST_LEASE_SECONDS"] = "2"
+        host.migrate()
+        (tmp_path / "job.gcode").write_text(text)
+        host.shell(
+            "from printers.models import Printer; Printer.objects.create(name='P0', "
+            f"slug='p0', port={str(sim.link)!r}, baud=250000, firmware={firmware!r}, "
+            "temperature_interval=0)"
+        )
+        host.manage("add_job", "p0", str(tmp_path / "job.gcode"))
+        # The analysis, as the Celery worker makes it (a resume needs it).
+        host.shell(
+            "from jobs.models import Job; from jobs.analysing import run; "
+            "run(Job.objects.get().analysis_id)"
+        )
+        journal = Journal(1, tmp_path / "journal")
+        journaled = lambda: (journal.last() or Entry(0, 0, 0, 0)).acked
+        first = _worker(host)
+        try:
+            wait_for(
+                lambda: _stats(sim)["executed"] == STALL_AT - 1
+                and len(sim.executed()) == STALL_AT - 1
+                and journaled() == len(_job_commands(sim)), 60,
+                "the firmware to stall and the worker to journal its last ok",
+            )  # fmt: skip
+            first.send_signal(signal.SIGKILL)
+            first.wait(timeout=30)
+        finally:
+            if first.poll() is None:
+                first.kill()
+        #: What the machine held before the next line: the uninterrupted state.
+        self.state_at_stop = _stats(sim)["state"]
+        self.before = len(_job_commands(sim))
+        assert sim.control("reset") == "ok"  # the power cut
+        wait_for(lambda: _lease_expired(host), 30, "the dead worker's lease to expire")
+        self.worker = _worker(host)
+        state = lambda: host.query("SELECT state FROM jobs_job")[0][0]
+        wait_for(lambda: state() == "interrupted", 60, "the job to be interrupted")
+
+    def resume(self, **choice: int) -> tuple[int, list[str]]:
+        """Plan (as the API does), make the plan (as Celery does), start it; wait
+        for the resumed run to complete. Returns its start line and preamble."""
+        out = self.host.shell(
+            "import json; from jobs.models import Job; "
+            "from jobs.resume.planning import request_plan, make_plan, start_plan; "
+            f"plan = request_plan(Job.objects.get(), **{choice!r}); "
+            "make_plan(plan.pk); plan.refresh_from_db(); "
+            "resumed = start_plan(plan); "
+            "print(json.dumps([plan.line, plan.preamble, resumed.pk]))"
+        )
+        line, preamble, resumed = json.loads(out.splitlines()[-1])
+        state = lambda: self.host.query(
+            f"SELECT state, message FROM jobs_job WHERE id = {resumed}"
+        )[0]
+        try:
+            wait_for(lambda: state()[0] not in ("queued", "printing"), 120,
+                     "the resumed run to end")  # fmt: skip
+        except AssertionError:
+            tail = "\n".join(self.sim.recorded()[-5:])
+            raise AssertionError(f"{state()}; the record ends:\n{tail}") from None
+        assert state()[0] == "completed", state()
+        lines_acked = self.host.query(
+            f"SELECT lines_acked FROM jobs_job WHERE id = {resumed}"
+        )[0][0]
+        assert lines_acked == len(commands_of(self.text))
+        wait_for(
+            lambda: len(self.sim.executed()) == _stats(self.sim)["executed"], 10,
+            "the simulator's record to hold every command it ran",
+        )  # fmt: skip
+        cleaned = [command_of(raw.encode()) for raw in preamble.splitlines()]
+        return line, [c for c in cleaned if c]
+
+    def close(self) -> None:
+        self.worker.send_signal(signal.SIGTERM)
+        self.worker.wait(timeout=60)
+
+
+def _position(state: str) -> list[float]:
+    return [float(v) for v in state.split()[:4]]
+
+
+@pytest.fixture
+def marlin_run(tmp_path: Path, sim_factory):
+    sim = sim_factory(
+        "marlin", "--time-scale", "0", "--baud", "0", "--record-state",
+        "--busy-after", str(STALL_AT), "--busy-seconds", "600",
+    )  # fmt: skip
+    run = Interrupted(tmp_path, sim, layered_print(), "marlin")
+    yield run
+    run.close()
+
+
+def test_sigkilled_job_resumes_at_its_last_acked_line_after_the_preamble(marlin_run):
+    run = marlin_run
+    line, preamble = run.resume()
+    commands = commands_of(run.text)
+
+    assert line == run.before  # the line after the last one acknowledged
+    recorded = _job_commands(run.sim)
+    assert [c for c, _ in recorded] == commands[:line] + preamble + commands[line:], (
+        "a line was lost or repeated, or the preamble is not between"
+    )
+    assert "G28 X Y" in preamble and "G28" not in preamble  # Z is never homed
+    assert "M190 S60" in preamble and "M109 T0 S210" in preamble
+    assert "M106 P0 S200" in preamble or line < commands.index("M106 S200")
+    # The machine at the resume point, as an uninterrupted run had it there.
+    found = _position(recorded[line + len(preamble)][1])
+    assert found == pytest.approx(_position(run.state_at_stop), abs=1e-4)
+
+
+def test_a_job_resumes_from_a_chosen_layer(marlin_run):
+    run = marlin_run
+    first_pass = _job_commands(run.sim)  # the interrupted run: each state recorded
+    layer = 2  # printed before the stall; the nozzle goes back down to it
+    line, preamble = run.resume(layer=layer)
+    commands = commands_of(run.text)
+
+    assert commands[line] == "G1 Z0.6 F600" and line < run.before
+    recorded = _job_commands(run.sim)
+    assert [c for c, _ in recorded] == (
+        commands[: run.before] + preamble + commands[line:]
+    )
+    found = _position(recorded[run.before + len(preamble)][1])
+    assert found == pytest.approx(_position(first_pass[line][1]), abs=1e-4)
+
+
+def test_a_grbl_job_resumes_with_its_modal_state_and_position(tmp_path, sim_factory):
+    sim = sim_factory(
+        "grbl", "--time-scale", "0", "--baud", "0", "--record-state",
+        "--busy-after", str(STALL_AT), "--busy-seconds", "600",
+    )  # fmt: skip
+    run = Interrupted(tmp_path, sim, cnc_pocket(), "grbl")
+    try:
+        line, preamble = run.resume()
+    finally:
+        run.close()
+    commands = commands_of(run.text)
+
+    recorded = _job_commands(sim)
+    compact = lambda lines: [c.replace(" ", "") for c in lines]  # as GRBL is sent
+    assert compact(c for c, _ in recorded) == compact(
+        commands[:line] + preamble + commands[line:]
+    )
+    assert "G55" in preamble and "M3 S12000" in preamble and "M8" in preamble
+    # Work position and every modal group ($G: motion, G55, units, distance,
+    # feed mode, spindle, coolant, tool, feed, speed) as the uninterrupted run
+    # (GRBL's record gives the state a line left: the preamble's last).
+    assert recorded[line + len(preamble) - 1][1] == run.state_at_stop
