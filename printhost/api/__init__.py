@@ -56,6 +56,7 @@ ROUTER_MODULES: list[str] = [
     "host",
     "repetier",
     "uploads",
+    "resume",
     "history",
     "print_history",
     "objects",
