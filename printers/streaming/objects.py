@@ -52,7 +52,7 @@ from printers.streaming.streams import Line
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator
 
-__all__ = ["ObjectFilter", "ObjectMark", "object_mark"]
+__all__ = ["ObjectFilter", "ObjectMark", "object_mark", "object_ranges"]
 
 #: Longest object name kept (the analysis cuts at the same length).
 MAX_NAME = 200
@@ -92,6 +92,27 @@ def object_mark(raw: bytes) -> ObjectMark | None:
     if found is None:
         return None
     return ObjectMark(_name(found.group(1)))
+
+
+def object_ranges(
+    entries: Iterable[Line | ObjectMark], *, limit: int = 100_000
+) -> dict[str, list[list[int]]]:
+    """Each object's commands as [first, end) index ranges (for the preview), at
+    most *limit* ranges in all."""
+    ranges: dict[str, list[list[int]]] = {}
+    objects = ObjectFilter(entries)
+    count = 0
+    for line in objects:
+        name = objects.active
+        if name is None or line.index < 0:
+            continue
+        spans = ranges.setdefault(name, [])
+        if spans and spans[-1][1] >= line.index:
+            spans[-1][1] = line.index + 1
+        elif count < limit:
+            spans.append([line.index, line.index + 1])
+            count += 1
+    return ranges
 
 
 def _name(text: str) -> str:

@@ -101,7 +101,7 @@ def stream_for(job: Job) -> Stream:
     preamble = [
         Line(start - 1, text, job.start_offset) for text in _commands(job.preamble)
     ]
-    file = _file_entries(job.path, start_index=start, start_offset=job.start_offset)
+    file = file_entries(job.path, start_index=start, start_offset=job.start_offset)
     # The stream reads through the object filter: the worker finds it there
     # (`stream.lines`) to cancel an object mid-print (printers/streaming/objects.py).
     objects = ObjectFilter(
@@ -119,7 +119,7 @@ def stream_for(job: Job) -> Stream:
     return stream
 
 
-def _file_entries(
+def file_entries(
     path: Path, *, start_index: int, start_offset: int
 ) -> Iterator[Line | ObjectMark]:
     """The file's commands as Lines (as `jobs.gcode.iter_commands` numbers them),

@@ -1,6 +1,8 @@
 """Cancel one object of a running print.
 
     GET  /printer/objects/<slug>?id=<job>   the job's objects and which are cancelled
+                                            (`&ranges=1`: each object's commands,
+                                            for the preview to grey cancelled ones)
     POST /printer/objects/<slug>            JSON {"id": <job>, "object": "<name>"}
                                             (or the same as query parameters)
 
@@ -30,7 +32,9 @@ from ninja.errors import HttpError
 
 from jobs.models import ACTIVE_STATES, Job
 from printers.models import Printer, QueuedCommand
+from printers.streaming.objects import object_ranges
 from printers.worker.requests import CANCEL_OBJECT
+from printers.worker.spool import file_entries
 from printhost import audit
 from printhost.api.common import (
     caller_of,
@@ -67,11 +71,30 @@ def _job(printer: Printer, value: object) -> Job:
     return job
 
 
+#: Files larger than this get no ranges (reading them would hold the request).
+RANGES_MAX_BYTES = 64 << 20
+
+
 @router.get("/printer/objects/{slug}", summary="A job's objects")
 def objects(request: HttpRequest, slug: str) -> HttpResponse:
-    """`?id=<job>`: the objects the file's analysis found, each with `cancelled`."""
+    """`?id=<job>`: the objects the file's analysis found, each with `cancelled`.
+
+    `&ranges=1` adds `ranges`: per object, its commands' [first, end) indexes, read
+    from the file (a file over RANGES_MAX_BYTES, or gone, gets none).
+    """
     printer = printer_for(request, slug, Role.VIEWER)
-    return envelope(objects_of(_job(printer, request.GET.get("id"))))
+    job = _job(printer, request.GET.get("id"))
+    data = objects_of(job)
+    if request.GET.get("ranges") and data["objects"]:
+        data["ranges"] = _ranges(job)
+    return envelope(data)
+
+
+def _ranges(job: Job) -> dict[str, list[list[int]]] | None:
+    path = job.path
+    if job.on_sd_card or not path.is_file() or job.size_bytes > RANGES_MAX_BYTES:
+        return None
+    return object_ranges(file_entries(path, start_index=0, start_offset=0))
 
 
 @router.post("/printer/objects/{slug}", summary="Cancel one object of a running job")

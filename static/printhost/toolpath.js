@@ -8,6 +8,7 @@ const TRAVEL = "#9aa0a6";
 const DONE_ALPHA = 1;
 const TODO_ALPHA = 0.25;
 const KEEP_LAYERS = 24;
+const CANCELLED = "#c8ccd0";
 // Colours by what slicers call their features (PrusaSlicer, Orca, Cura, S3D).
 const FEATURE_COLOURS = [
   [/external|outer|wall-outer/i, "#ff7f0e"],
@@ -71,6 +72,17 @@ export function toolpathPreview(panel) {
   let shown = -1;
   let doneLine = -1; // commands acknowledged, while the job prints
   let key = "";
+  let cancelled = []; // sorted [first, end) command ranges of cancelled objects
+
+  function isCancelled(command) {
+    let low = 0, high = cancelled.length;
+    while (low < high) {
+      const middle = (low + high) >> 1;
+      if (cancelled[middle][1] <= command) low = middle + 1;
+      else high = middle;
+    }
+    return low < cancelled.length && cancelled[low][0] <= command;
+  }
 
   function layerOf(line) {
     let found = 0;
@@ -148,9 +160,14 @@ export function toolpathPreview(panel) {
     const bySpeed = colour.value === "speed";
     const speeds = lines.filter((l) => l.drawn).map((l) => l.speed);
     const low = Math.min(...speeds, Infinity), high = Math.max(...speeds, 0);
+    let greyed = 0;
     const head = strokeLines(lines, place, (line) => {
       const alpha = doneLine < 0 || line.command < doneLine ? DONE_ALPHA : TODO_ALPHA;
       if (!line.drawn) return { colour: TRAVEL, alpha };
+      if (cancelled.length && isCancelled(line.command)) {
+        greyed += 1; // a cancelled object: drawn faint, whatever was printed of it
+        return { colour: CANCELLED, alpha: TODO_ALPHA };
+      }
       const hue = bySpeed ? speedColour(line.speed, low, high) : featureColour(info.features[line.feature] || "");
       return { colour: hue, alpha };
     });
@@ -162,6 +179,7 @@ export function toolpathPreview(panel) {
       context.fill();
     }
     panel.dataset.drawn = String(lines.length);
+    panel.dataset.cancelledDrawn = String(greyed);
     showLegend(bySpeed, low, high, lines);
   }
 
@@ -222,6 +240,11 @@ export function toolpathPreview(panel) {
     },
     stop() {
       doneLine = -1;
+      if (info) draw(shown);
+    },
+    /** Grey the objects named in *names*, given every object's command ranges. */
+    cancel(ranges, names) {
+      cancelled = names.flatMap((name) => ranges?.[name] ?? []).sort((a, b) => a[0] - b[0]);
       if (info) draw(shown);
     },
   };
