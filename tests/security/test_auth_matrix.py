@@ -26,6 +26,7 @@ from django.utils import timezone
 from jobs import analysing, history, uploads
 from jobs.analysis.thumbnails import png_encode
 from jobs.models import Job
+from jobs.resume.planning import make_plan, request_plan
 from jobs.services import enqueue_job
 from printers.models import Printer
 from printhost.access import issue_key
@@ -162,6 +163,10 @@ ENDPOINTS = [
     ep("POST", "/printer/analysis/p/{stored}/again", OPERATOR),
     ep("GET", "/printer/thumbnail/p/{stored}/16x16.png", VIEWER),
     ep("GET", "/printer/toolpath/p/{stored}/0", VIEWER),
+    ep("GET", "/printer/resume/p?id={stopped}", VIEWER),
+    ep("GET", "/printer/resume/p?plan={plan}", VIEWER),
+    ep("POST", "/printer/resume/p", OPERATOR, body='jsonf:{{"id": {stopped}}}'),
+    ep("POST", "/printer/resume/p/start", OPERATOR, body='jsonf:{{"plan": {plan}}}'),
     ep("GET", "/printer/objects/p?id={stored}", VIEWER),
     ep("POST", "/printer/objects/p", OPERATOR, body='jsonf:{{"id": {running}, "object": "a"}}', state="printing"),
     ep("POST", "/printer/model/p", OPERATOR, body="file"),
@@ -277,6 +282,12 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         state=Job.State.COMPLETED, started_at=timezone.now(), finished_at=timezone.now()
     )
     entry = history.record_run(done.pk)
+    # A run that stopped (its file analysed, with stored's), and a plan to resume it.
+    stopped = enqueue_job(p, world.source, name="stopped.gcode", queue=False)
+    Job.objects.filter(pk=stopped.pk).update(state=Job.State.INTERRUPTED, lines_acked=2)
+    stopped.refresh_from_db()
+    plan = request_plan(stopped)
+    make_plan(plan.pk)
     running = None
     if state in ("printing", "paused"):
         running = enqueue_job(p, world.source, name="running.gcode")
@@ -298,6 +309,8 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
     return {
         "stored": stored.pk,
         "done": done.pk,
+        "stopped": stopped.pk,
+        "plan": plan.pk,
         "file": stored.file.rsplit("/", 1)[-1],
         "upload": upload.pk,
         "own_key": issue_key(user, "spare")[0].pk,
