@@ -72,7 +72,7 @@ def test_an_operator_cancels_an_object_from_the_job_page(
     expect(preview).to_have_attribute(
         "data-cancelled-drawn", re.compile(r"^[1-9]\d*$"), timeout=PRINT_MS
     )
-    tab.screenshot("job-objects-cancelled")
+    tab.screenshot("job-objects-cancelled", top="objects")
     assert live.host.query("SELECT cancelled_objects FROM jobs_job") == [
         ('["box-b.stl"]',)
     ]
