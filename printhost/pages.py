@@ -220,6 +220,29 @@ def job_page(request: HttpRequest, job_id: int) -> HttpResponse:
 
 
 @login_required
+def resume_page(request: HttpRequest, job_id: int) -> HttpResponse:
+    """Resume a stopped run: choose the line or layer, read the preamble, start."""
+    from printhost.api.resume import options_of
+
+    job = get_object_or_404(
+        Job.objects.select_related("printer", "analysis"), pk=job_id
+    )
+    caller = caller_of_page(request)
+    if not caller.can(job.printer, Role.VIEWER):
+        return forbidden(request, f"viewer role needed on printer {job.printer.slug!r}")
+    options = options_of(job)
+    return render(
+        request,
+        "resume.html",
+        {
+            "job": job,
+            "options": options,
+            "can_operate": caller.can(job.printer, Role.OPERATOR),
+        },
+    )
+
+
+@login_required
 def account(request: HttpRequest) -> HttpResponse:
     """The user's API keys and the app-key requests waiting for a decision."""
     caller = caller_of_page(request)

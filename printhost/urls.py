@@ -20,6 +20,7 @@ urlpatterns = [
     path("", pages.dashboard, name="dashboard"),
     path("printers/<slug:slug>/", pages.printer_page, name="printer"),
     path("jobs/<int:job_id>/", pages.job_page, name="job"),
+    path("jobs/<int:job_id>/resume/", pages.resume_page, name="resume"),
     path("account/", pages.account, name="account"),
     path("history/", pages.history, name="history"),
     # printhost runs without a front web server: daphne serves the few static

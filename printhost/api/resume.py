@@ -16,7 +16,7 @@ Nothing reaches the printer before `start`: the preamble is shown first. Refusal
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from django.http import HttpRequest, HttpResponse  # noqa: TC002 (ninja reads view hints)
 from ninja import Router
@@ -25,7 +25,6 @@ from ninja.errors import HttpError
 from jobs.analysing import analysis_of
 from jobs.models import Job, ResumePlan
 from jobs.resume.planning import ResumeRefused, request_plan, start_plan
-from printers.models import Printer
 from printhost import audit
 from printhost.api.common import (
     caller_of,
@@ -36,6 +35,9 @@ from printhost.api.common import (
     request_params,
 )
 from printhost.models import Role
+
+if TYPE_CHECKING:
+    from printers.models import Printer
 
 router = Router(tags=["printer (resume)"])
 
