@@ -54,3 +54,14 @@ def test_someone_without_a_role_on_the_printer_is_refused(
 ) -> None:
     client.force_login(user_with(None))
     assert client.get(f"/jobs/{stopped.pk}/resume/").status_code == 403
+
+
+def test_a_stopped_jobs_page_links_to_its_resume_page(
+    client: Client, stopped: Job
+) -> None:
+    client.force_login(user_with(Role.VIEWER, stopped.printer))
+    page = client.get(f"/jobs/{stopped.pk}/").content.decode()
+    assert f'href="/jobs/{stopped.pk}/resume/"' in page
+    Job.objects.filter(pk=stopped.pk).update(state=Job.State.COMPLETED)
+    page = client.get(f"/jobs/{stopped.pk}/").content.decode()
+    assert "/resume/" not in page
