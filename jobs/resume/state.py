@@ -94,8 +94,9 @@ def words_of(text: str) -> tuple[list[str], dict[str, float]]:
     order) and its other words by letter."""
     codes: list[str] = []
     words: dict[str, float] = {}
-    for letter, number in _WORD.findall(text.upper()):
-        if letter in "GMT" and not (letter == "T" and codes and codes[-1] in HEATERS):
+    for place, (letter, number) in enumerate(_WORD.findall(text.upper())):
+        # T leads a tool change (`T1`); after a code it is a word (M104 T1, M204 T).
+        if letter in "GM" or (letter == "T" and place == 0):
             codes.append(f"{letter}{int(float(number))}")
         else:
             words[letter] = float(number)

@@ -42,8 +42,9 @@ def test_g90_and_g91_set_e_on_a_printer_but_not_on_a_cnc():
 def test_heaters_fans_and_settings_keep_their_last_values_by_heater_and_index():
     state = state_after(
         "M104 S200", "M104 T1 S180", "M109 S215", "M140 S55", "M190 R60",
-        "M106 S100", "M106 P1 S255", "M107", "M204 P500", "M204 P800 T1500",
+        "M106 S100", "M106 P1 S255", "M107", "M204 P500", "T1", "M204 P800 T1500",
     )  # fmt: skip
+    assert state.tool == 1  # M204's T is an acceleration, not a tool
     assert state.heaters == {"tool0": 215.0, "tool1": 180.0, "bed": 60.0}
     assert state.fans == {"0": 0.0, "1": 255.0}
     assert state.settings == {"M204": "M204 P800 T1500"}
