@@ -32,7 +32,7 @@ from django.db import transaction
 from django.db.models import Exists, OuterRef, Q
 from django.utils import timezone
 
-from jobs.models import FINISHED_STATES, FileAnalysis, Job, Upload
+from jobs.models import FINISHED_STATES, FileAnalysis, Job, ResumePlan, Upload
 from jobs.paths import PathRefused, inside
 from printers.models import Printer
 
@@ -244,6 +244,8 @@ def _remove_job_file(name: str, now: datetime) -> tuple[int, set[str]]:
             )
             if not all(_past_retention(*row[:4], now=now) for row in sharing):
                 return 0, set()
+            if _resume_needs(name):
+                return 0, set()
             marked = Job.objects.filter(file=name, file_removed_at__isnull=True).update(
                 file_removed_at=now
             )
@@ -254,6 +256,19 @@ def _remove_job_file(name: str, now: datetime) -> tuple[int, set[str]]:
         logger.warning("upkeep: job file %s not removed: %s", name, error)
         return 0, set()
     return marked, {row[4] for row in sharing if row[4]}
+
+
+def _resume_needs(name: str) -> bool:
+    """A run interrupted and not resumed yet, or a resume plan not started, still
+    needs the file *name*: a part waits on a bed for it, whatever its age."""
+    waiting = Job.objects.filter(
+        file=name, state=Job.State.INTERRUPTED, file_removed_at__isnull=True
+    ).exclude(Exists(Job.objects.filter(resume_of=OuterRef("pk"))))
+    planned = ResumePlan.objects.filter(
+        job__file=name,
+        state__in=[ResumePlan.State.PENDING, ResumePlan.State.READY],
+    )
+    return waiting.exists() or planned.exists()
 
 
 def _past_retention(

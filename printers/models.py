@@ -150,7 +150,8 @@ class Printer(models.Model):
     job_file_days = models.PositiveIntegerField(
         default=30,
         help_text="days a finished job's file is kept after it ends (0 = forever); "
-        "the job stays in the history, and a file a queued job uses is kept",
+        "the job stays in the history; a file a queued job uses, or an interrupted "
+        "run not resumed yet, is kept",
     )
     resume_home_z = models.BooleanField(
         default=False,

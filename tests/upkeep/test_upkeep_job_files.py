@@ -15,7 +15,7 @@ from django.test import Client
 from django.utils import timezone
 
 from jobs import services
-from jobs.models import FileAnalysis, Job
+from jobs.models import FileAnalysis, Job, ResumePlan
 from jobs.upkeep import remove_expired_job_files
 from tests.upkeep.conftest import analysed, finish
 
@@ -31,7 +31,7 @@ FINISHED = ["completed", "aborted", "failed", "interrupted"]
 NONE_REMOVED = {"files": 0, "jobs": 0, "analyses": 0, "folders": 0}
 
 
-@pytest.mark.parametrize("state", FINISHED)
+@pytest.mark.parametrize("state", ["completed", "aborted", "failed"])
 def test_a_finished_job_past_the_retention_loses_its_file_and_keeps_its_row(
     make_printer: Callable[..., Printer], make_job: Callable[..., Job], state: str
 ) -> None:
@@ -250,3 +250,36 @@ def test_the_admin_does_not_queue_again_a_job_whose_file_was_removed(
     assert "their files were removed" in response.content.decode()
     states = dict(Job.objects.values_list("pk", "state"))
     assert (states[gone.pk], states[kept.pk]) == ("completed", "queued")
+
+
+def test_an_interrupted_run_keeps_its_file_until_it_is_resumed(
+    make_printer: Callable[..., Printer], make_job: Callable[..., Job]
+) -> None:
+    now, long_ago = timezone.now(), timezone.now() - 90 * DAY
+    stopped = finish(make_job(make_printer(), "G28\nG1 X1\n"), "interrupted", long_ago)
+
+    assert remove_expired_job_files(now=now)["files"] == 0  # a part waits for it
+    assert stopped.path.exists()
+
+    resumed = Job.objects.create(
+        printer=stopped.printer, name=stopped.name, file=stopped.file,
+        sha256=stopped.sha256, resume_of=stopped, state="completed",
+        finished_at=long_ago,
+    )  # fmt: skip
+    assert remove_expired_job_files(now=now)["jobs"] == 2
+    assert not stopped.path.exists()
+    resumed.refresh_from_db()
+    assert resumed.file_removed_at == now
+
+
+def test_a_resume_plan_not_started_keeps_the_file_of_an_old_failed_run(
+    make_printer: Callable[..., Printer], make_job: Callable[..., Job]
+) -> None:
+    now = timezone.now()
+    failed = finish(make_job(make_printer(), "G28\n"), "failed", now - 90 * DAY)
+    plan = ResumePlan.objects.create(job=failed, line=0, state="ready")
+
+    assert remove_expired_job_files(now=now)["files"] == 0
+    assert failed.path.exists()
+    ResumePlan.objects.filter(pk=plan.pk).update(state="started")
+    assert remove_expired_job_files(now=now)["files"] == 1
