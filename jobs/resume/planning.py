@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from django.db import transaction
 from django.db.models import Min
 
 from jobs.analysing import analysis_of
+from jobs.eta import IN_FLIGHT
 from jobs.gcode import BadGcode, iter_commands
 from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
 from jobs.paths import PathRefused
@@ -35,12 +36,12 @@ from printers.worker.spool import next_position
 if TYPE_CHECKING:
     from django.contrib.auth.models import AbstractBaseUser
 
+    from jobs.analysis.result import Analysis
+
 logger = logging.getLogger(__name__)
 
 #: States of a run that stopped before its end and can be resumed.
 RESUMABLE = frozenset({Job.State.INTERRUPTED, Job.State.FAILED, Job.State.ABORTED})
-#: Commands the firmware may hold acknowledged but not yet run (Marlin's planner).
-IN_FLIGHT = 16
 
 
 class ResumeRefused(ValueError):
@@ -122,7 +123,7 @@ def _check_resumable(job: Job) -> None:
         raise ResumeRefused(409, f"job {job.pk}: the stored file is gone")
 
 
-def _analysis(job: Job) -> Any:
+def _analysis(job: Job) -> Analysis:
     analysis = job.analysis
     state = analysis.state if analysis is not None else None
     if state != FileAnalysis.State.DONE:
