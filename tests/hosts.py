@@ -19,6 +19,7 @@ import tempfile
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
+from datetime import UTC, datetime
 from pathlib import Path
 from types import ModuleType
 
@@ -257,6 +258,19 @@ for username, role, printer in {users!r}:
                     except subprocess.TimeoutExpired:
                         os.killpg(process.pid, signal.SIGKILL)
                         process.wait()
+
+    def run_printer(self, slug: str) -> subprocess.Popen[bytes]:
+        """`manage.py run_printer <slug>`: one printer's worker, output discarded."""
+        return subprocess.Popen(
+            [sys.executable, "manage.py", "run_printer", slug], cwd=ROOT,
+            env=self.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+
+    def lease_expired(self) -> bool:
+        """The (only) printer's worker lease has run out, or was never taken."""
+        (expires,) = self.query("SELECT lease_expires_at FROM printers_printer")[0]
+        now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
+        return expires is None or str(expires)[:26] < now
 
     def log_tail(self, lines: int = 40) -> str:
         path = self.folder / "runhost.log"

@@ -51,6 +51,14 @@ class SimulatorProcess:
         """Commands the firmware executed so far, in order (flushed every 50 ms)."""
         return [line.split("\t@", 1)[0] for line in self.recorded()]
 
+    def stats(self) -> dict[str, object]:
+        """The simulator's counters and state (`stats` on the control socket):
+        executed commands (at once: the record lags up to 50 ms), faults, state."""
+        answer = self.control("stats")
+        if not answer.startswith("ok "):
+            raise RuntimeError(f"stats: {answer}")
+        return json.loads(answer[3:])
+
     def recorded(self) -> list[str]:
         """The record's lines as written (`--record-state` adds each command's state)."""
         if not self.record.exists():

@@ -22,9 +22,8 @@ from ninja.errors import HttpError
 
 from jobs import analysing
 from jobs.models import FileAnalysis, Job
-from printers.models import Printer  # noqa: TC001
 from printhost import audit
-from printhost.api.common import caller_of, envelope, printer_for
+from printhost.api.common import caller_of, envelope, job_on, printer_for
 from printhost.models import Role
 
 router = Router(tags=["file analysis"])
@@ -33,21 +32,10 @@ _THUMBNAIL = re.compile(r"^(\d{1,4})x(\d{1,4})\.(png|jpg)$")
 _TYPES = {"png": "image/png", "jpg": "image/jpeg"}
 
 
-def _job(printer: Printer, job_id: int) -> Job:
-    job = (
-        Job.objects.filter(printer=printer, pk=job_id)
-        .select_related("analysis", "printer")
-        .first()
-    )
-    if job is None:
-        raise HttpError(404, f"no job {job_id} on {printer.slug}")
-    return job
-
-
 @router.get("/printer/analysis/{slug}/{job_id}", summary="A job's file analysis")
 def analysis(request: HttpRequest, slug: str, job_id: int) -> HttpResponse:
     """The analysis's state and figures, with each layer's Z, first command and time."""
-    job = _job(printer_for(request, slug, Role.VIEWER), job_id)
+    job = job_on(printer_for(request, slug, Role.VIEWER), job_id)
     data = job.analysis_dict()
     if data is None:
         raise HttpError(404, f"job {job_id} has no file to analyse (a print from SD)")
@@ -78,7 +66,7 @@ def toolpath(request: HttpRequest, slug: str, job_id: int, layer: int) -> HttpRe
     """Layer *layer* (0-based) of the preview's geometry: records of 32-bit words,
     per polyline its first command, kind | feature << 8 | speed << 16, its point
     count, then x, y per point (float32, mm)."""
-    job = _job(printer_for(request, slug, Role.VIEWER), job_id)
+    job = job_on(printer_for(request, slug, Role.VIEWER), job_id)
     found = analysing.analysis_of(job)
     bounds = (found.toolpath.get("layers") or []) if found is not None else []
     if found is None or not bounds:
@@ -113,7 +101,7 @@ def analyse_again(request: HttpRequest, slug: str, job_id: int) -> HttpResponse:
     """Run the analysis again (a failed one, or a pending one whose message may be
     lost: the claim makes a second delivery harmless); 409 while it runs."""
     printer = printer_for(request, slug, Role.OPERATOR)
-    job = _job(printer, job_id)
+    job = job_on(printer, job_id)
     if job.analysis_id is None:
         raise HttpError(404, f"job {job_id} has no file to analyse")
     with transaction.atomic():
@@ -137,7 +125,7 @@ def analyse_again(request: HttpRequest, slug: str, job_id: int) -> HttpResponse:
     "/printer/thumbnail/{slug}/{job_id}/{name}", summary="A thumbnail of a job's file"
 )
 def thumbnail(request: HttpRequest, slug: str, job_id: int, name: str) -> HttpResponse:
-    job = _job(printer_for(request, slug, Role.VIEWER), job_id)
+    job = job_on(printer_for(request, slug, Role.VIEWER), job_id)
     return serve_thumbnail(request, job, name)
 
 

@@ -19,6 +19,7 @@ from ninja.security.base import AuthBase
 from ninja.utils import check_csrf
 
 from jobs.gcode import BadGcode
+from jobs.models import Job
 from jobs.sdcard import BadCardName, SdRefused
 from jobs.services import ChecksumMismatch, FileRemoved
 from printers.models import Printer
@@ -92,6 +93,26 @@ def printer_for(request: HttpRequest, slug: str, role: int) -> Printer:
         raise HttpError(404, f"Unknown printer {slug!r}")
     caller.require(printer, role)
     return printer
+
+
+def job_on(printer: Printer, job_id: int) -> Job:
+    """Job *job_id* of *printer*, with its printer and analysis rows (404 if none)."""
+    job = (
+        Job.objects.filter(printer=printer, pk=job_id)
+        .select_related("printer", "analysis")
+        .first()
+    )
+    if job is None:
+        raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
+    return job
+
+
+def job_of(printer: Printer, params: dict[str, str]) -> Job:
+    """The job a call names with `id` (400 without it, 404 if not on *printer*)."""
+    job_id = parse_int(params.get("id"), "id", default=-1, minimum=1)
+    if job_id < 0:
+        raise HttpError(400, "id is required")
+    return job_on(printer, job_id)
 
 
 def json_body(request: HttpRequest) -> dict[str, Any]:

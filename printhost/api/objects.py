@@ -31,7 +31,7 @@ from ninja import Router
 from ninja.errors import HttpError
 
 from jobs.models import ACTIVE_STATES, Job
-from printers.models import Printer, QueuedCommand
+from printers.models import QueuedCommand
 from printers.streaming.objects import object_ranges
 from printers.worker.requests import CANCEL_OBJECT
 from printers.worker.spool import file_entries
@@ -39,6 +39,7 @@ from printhost import audit
 from printhost.api.common import (
     caller_of,
     envelope,
+    job_on,
     json_body,
     parse_int,
     printer_for,
@@ -59,18 +60,6 @@ def objects_of(job: Job) -> dict[str, Any]:
     }
 
 
-def _job(printer: Printer, value: object) -> Job:
-    number = parse_int(None if value is None else str(value), "id", default=-1)
-    job = (
-        Job.objects.filter(printer=printer, pk=number)
-        .select_related("analysis", "printer")
-        .first()
-    )
-    if job is None:
-        raise HttpError(404, f"no job {value!r} on printer {printer.slug!r}")
-    return job
-
-
 #: Files larger than this get no ranges (reading them would hold the request).
 RANGES_MAX_BYTES = 64 << 20
 
@@ -83,7 +72,7 @@ def objects(request: HttpRequest, slug: str) -> HttpResponse:
     from the file (a file over RANGES_MAX_BYTES, or gone, gets none).
     """
     printer = printer_for(request, slug, Role.VIEWER)
-    job = _job(printer, request.GET.get("id"))
+    job = job_on(printer, parse_int(request.GET.get("id"), "id", default=-1))
     data = objects_of(job)
     if request.GET.get("ranges") and data["objects"]:
         data["ranges"] = _ranges(job)
@@ -105,7 +94,10 @@ def cancel_object(request: HttpRequest, slug: str) -> HttpResponse:
     """
     printer = printer_for(request, slug, Role.OPERATOR)
     body = {**request_params(request), **json_body(request)}
-    job = _job(printer, body.get("id"))
+    value = body.get("id")
+    job = job_on(
+        printer, parse_int(None if value is None else str(value), "id", default=-1)
+    )
     name = body.get("object")
     if not isinstance(name, str) or not name:
         raise HttpError(422, 'send {"id": <job>, "object": "<the object\'s name>"}')

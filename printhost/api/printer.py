@@ -42,6 +42,7 @@ from printhost import audit
 from printhost.api.common import (
     caller_of,
     envelope,
+    job_of,
     parse_int,
     printer_for,
     refuse_acting_get,
@@ -68,16 +69,6 @@ router = Router(tags=["printer (Repetier-Server)"])
 
 #: Most response lines one `response` call returns; `lastid` says where to go on.
 RESPONSE_PAGE = 1000
-
-
-def job_of(printer: Printer, params: dict[str, str]) -> Job:
-    job_id = parse_int(params.get("id"), "id", default=-1, minimum=1)
-    if job_id < 0:
-        raise HttpError(400, "id is required")
-    job = Job.objects.filter(printer=printer, pk=job_id).first()
-    if job is None:
-        raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
-    return job
 
 
 # -- seed calls ---------------------------------------------------------------------

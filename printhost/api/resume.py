@@ -29,6 +29,7 @@ from printhost import audit
 from printhost.api.common import (
     caller_of,
     envelope,
+    job_of,
     json_body,
     parse_int,
     printer_for,
@@ -47,20 +48,6 @@ def _params(request: HttpRequest) -> dict[str, str]:
     if (request.content_type or "") == "application/json":
         params.update({k: str(v) for k, v in json_body(request).items()})
     return params
-
-
-def _job(printer: Printer, params: dict[str, str]) -> Job:
-    job_id = parse_int(params.get("id"), "id", default=-1, minimum=1)
-    if job_id < 0:
-        raise HttpError(400, "id (the job to resume) is required")
-    job = (
-        Job.objects.select_related("printer", "analysis")
-        .filter(printer=printer, pk=job_id)
-        .first()
-    )
-    if job is None:
-        raise HttpError(404, f"no job {job_id} on printer {printer.slug!r}")
-    return job
 
 
 def _plan(printer: Printer, params: dict[str, str]) -> ResumePlan:
@@ -98,7 +85,7 @@ def resume_info(request: HttpRequest, slug: str) -> HttpResponse:
     params = request_params(request)
     if params.get("plan"):
         return envelope(_plan(printer, params).as_dict())
-    return envelope(options_of(_job(printer, params)))
+    return envelope(options_of(job_of(printer, params)))
 
 
 def _optional(params: dict[str, str], name: str) -> int | None:
@@ -115,7 +102,7 @@ def resume_plan(request: HttpRequest, slug: str) -> HttpResponse:
     printer = printer_for(request, slug, Role.OPERATOR)
     caller = caller_of(request)
     params = _params(request)
-    job = _job(printer, params)
+    job = job_of(printer, params)
     try:
         plan = request_plan(
             job,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from typing import TYPE_CHECKING
 
 from jobs.models import Job
@@ -26,7 +25,7 @@ USER_DEFAULTS = {
 
 def sim_stats(sim: Sim) -> dict[str, object]:
     """The simulator's counters (executed commands, dropped RX bytes, faults)."""
-    return json.loads(sim.control("stats").removeprefix("ok "))
+    return sim.stats()
 
 
 def run_job(worker: PrinterWorker, job: Job, timeout: float) -> Job:

@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
-import subprocess
-import sys
-from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from printers.sample_gcode import commands_of, segments
 from printers.worker.journal import Entry, Journal
-from tests.conftest import HOST_COMMANDS, ROOT, Sim, wait_for
+from tests.conftest import HOST_COMMANDS, wait_for
 from tests.hosts import Host
 
 pytestmark = pytest.mark.slow
@@ -30,23 +26,6 @@ def test_journal_keeps_the_last_complete_entry_and_ignores_a_torn_line(tmp_path)
         file.write("3 99 1")  # the process died in the middle of a write
 
     assert Journal(7, tmp_path).last() == Entry(3, 12, 16, 240)
-
-
-def _worker(host: Host) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "manage.py", "run_printer", "p0"], cwd=ROOT, env=host.env,
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
-
-
-def _firmware_executed(sim: Sim) -> int:
-    return json.loads(sim.control("stats").removeprefix("ok "))["executed"]
-
-
-def _lease_expired(host: Host) -> bool:
-    (expires,) = host.query("SELECT lease_expires_at FROM printers_printer")[0]
-    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
-    return expires is None or str(expires)[:26] < now
 
 
 def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
@@ -67,7 +46,7 @@ def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
     journaled = lambda: (journal.last() or Entry(0, 0, 0, 0)).acked
     ran = lambda: [c for c in sim.executed() if not c.startswith(HOST_COMMANDS)]
 
-    first = _worker(host)
+    first = host.run_printer("p0")
     try:
         wait_for(lambda: journaled() > 500, 60, "the job to be well under way")
         # The firmware stops finishing commands (no more oks); the worker reads the
@@ -76,7 +55,7 @@ def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
         # command the firmware's own counter has (host commands included).
         assert sim.control("busy 600") == "ok"
         wait_for(
-            lambda: len(sim.executed()) == _firmware_executed(sim)
+            lambda: len(sim.executed()) == sim.stats()["executed"]
             and journaled() == len(ran()) and journaled() > 0, 30,
             "the worker to journal every ok the firmware sent",
         )  # fmt: skip
@@ -88,8 +67,8 @@ def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
     executed = len(ran())
     saved = host.query("SELECT lines_acked FROM jobs_job")[0][0]
 
-    wait_for(lambda: _lease_expired(host), 30, "the dead worker's lease to expire")
-    second = _worker(host)
+    wait_for(lambda: host.lease_expired(), 30, "the dead worker's lease to expire")
+    second = host.run_printer("p0")
     try:
         state = lambda: host.query("SELECT state, lines_acked, message FROM jobs_job")[
             0

@@ -3,8 +3,6 @@ alarms, check mode and jogging."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
 
 from jobs.models import Job
@@ -38,9 +36,7 @@ def saved(worker: PrinterWorker) -> Printer:
 
 
 def stats(sim: object) -> dict[str, object]:
-    answer = sim.control("stats")  # type: ignore[attr-defined]
-    assert answer.startswith("ok "), answer
-    return json.loads(answer[3:])
+    return sim.stats()  # type: ignore[attr-defined]
 
 
 def slow_moves(count: int) -> str:

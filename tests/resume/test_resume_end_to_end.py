@@ -6,9 +6,6 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
-from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 import pytest
@@ -16,7 +13,7 @@ import pytest
 from jobs.gcode import command_of
 from printers.sample_gcode import commands_of
 from printers.worker.journal import Entry, Journal
-from tests.conftest import HOST_COMMANDS, ROOT, Sim, wait_for
+from tests.conftest import HOST_COMMANDS, Sim, wait_for
 from tests.hosts import Host
 from tests.resume.prints import cnc_pocket, layered_print
 
@@ -27,23 +24,6 @@ pytestmark = pytest.mark.slow
 
 #: The firmware stops (busy for good) before this command, counted from its start.
 STALL_AT = 700
-
-
-def _worker(host: Host) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "manage.py", "run_printer", "p0"], cwd=ROOT, env=host.env,
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
-
-
-def _stats(sim: Sim) -> dict:
-    return json.loads(sim.control("stats").removeprefix("ok "))
-
-
-def _lease_expired(host: Host) -> bool:
-    (expires,) = host.query("SELECT lease_expires_at FROM printers_printer")[0]
-    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
-    return expires is None or str(expires)[:26] < now
 
 
 def _job_commands(sim: Sim) -> list[tuple[str, str]]:
@@ -79,10 +59,10 @@ class Interrupted:
         )
         journal = Journal(1, tmp_path / "journal")
         journaled = lambda: (journal.last() or Entry(0, 0, 0, 0)).acked
-        first = _worker(host)
+        first = host.run_printer("p0")
         try:
             wait_for(
-                lambda: _stats(sim)["executed"] == STALL_AT - 1
+                lambda: sim.stats()["executed"] == STALL_AT - 1
                 and len(sim.executed()) == STALL_AT - 1
                 and journaled() == len(_job_commands(sim)), 60,
                 "the firmware to stall and the worker to journal its last ok",
@@ -93,11 +73,11 @@ class Interrupted:
             if first.poll() is None:
                 first.kill()
         #: What the machine held before the next line: the uninterrupted state.
-        self.state_at_stop = _stats(sim)["state"]
+        self.state_at_stop = sim.stats()["state"]
         self.before = len(_job_commands(sim))
         assert sim.control("reset") == "ok"  # the power cut
-        wait_for(lambda: _lease_expired(host), 30, "the dead worker's lease to expire")
-        self.worker = _worker(host)
+        wait_for(lambda: host.lease_expired(), 30, "the dead worker's lease to expire")
+        self.worker = host.run_printer("p0")
         state = lambda: host.query("SELECT state FROM jobs_job")[0][0]
         wait_for(lambda: state() == "interrupted", 60, "the job to be interrupted")
 
@@ -128,7 +108,7 @@ class Interrupted:
         )[0][0]
         assert lines_acked == len(commands_of(self.text))
         wait_for(
-            lambda: len(self.sim.executed()) == _stats(self.sim)["executed"], 10,
+            lambda: len(self.sim.executed()) == self.sim.stats()["executed"], 10,
             "the simulator's record to hold every command it ran",
         )  # fmt: skip
         cleaned = [command_of(raw.encode()) for raw in preamble.splitlines()]
