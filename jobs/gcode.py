@@ -26,13 +26,15 @@ import hashlib
 import re
 import unicodedata
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar, cast
 
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode
 from printers.protocol.checksum import clean_line
 
+T = TypeVar("T")
+
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from pathlib import Path
     from typing import Any, BinaryIO
 
@@ -139,6 +141,20 @@ def iter_commands(
     reading seek there instead of reading every line before it (a binary file is
     decoded from its start). Line numbers count from the start offset then.
     """
+    # Without a *comment* reader, read_entries yields commands only.
+    entries = read_entries(path, start_index=start_index, start_offset=start_offset)
+    return cast("Iterator[Command]", entries)
+
+
+def read_entries(
+    path: Path,
+    *,
+    start_index: int = 0,
+    start_offset: int = 0,
+    comment: Callable[[bytes], T | None] | None = None,
+) -> Iterator[Command | T]:
+    """`iter_commands`, with what *comment* makes of the lines that send nothing
+    (comments, blank lines) from the start on, where it makes something."""
     index = 0
     if start_offset > 0 and _seekable_text(path):
         index = start_index
@@ -148,6 +164,10 @@ def iter_commands(
     for number, (raw, offset) in enumerate(lines, start=1):
         text = command_of(raw)
         if not text:
+            if comment is not None and index >= start_index:
+                found = comment(raw)
+                if found is not None:
+                    yield found
             continue
         if index >= start_index:
             yield Command(index, text, offset, number)

@@ -9,8 +9,7 @@ from django.db.models import F
 from django.utils import timezone
 
 from jobs import history
-from jobs.bgcode import is_bgcode
-from jobs.gcode import command_of, file_lines
+from jobs.gcode import Command, command_of, read_entries
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
 from printers.streaming import Line, Stream, StreamType
@@ -122,30 +121,18 @@ def stream_for(job: Job) -> Stream:
 def file_entries(
     path: Path, *, start_index: int, start_offset: int
 ) -> Iterator[Line | ObjectMark]:
-    """The file's commands as Lines (as `jobs.gcode.iter_commands` numbers them),
-    and its object marker comments, which iter_commands drops, as ObjectMarks.
-
-    Only lines that send nothing are looked at for a marker, with one bytes search
-    each, so the stream reads as fast as before.
+    """The file's commands as Lines, and its object marker comments (which the
+    commands leave out) as ObjectMarks. Only lines that send nothing are looked at
+    for a marker, with one bytes search each, so the stream reads as fast as before.
     """
-    index = 0
-    if start_offset > 0 and _text_file(path):
-        index = start_index
-    else:
-        start_offset = 0
-    for raw, offset in file_lines(path, start=start_offset):
-        text = command_of(raw)
-        if text:
-            if index >= start_index:
-                yield Line(index, text, offset)
-            index += 1
-        elif index >= start_index and (mark := object_mark(raw)) is not None:
-            yield mark
-
-
-def _text_file(path: Path) -> bool:
-    with path.open("rb") as handle:
-        return not is_bgcode(handle.read(4))
+    entries = read_entries(
+        path, start_index=start_index, start_offset=start_offset, comment=object_mark
+    )
+    for entry in entries:
+        if isinstance(entry, Command):
+            yield Line(entry.index, entry.text, entry.end_offset)
+        else:
+            yield entry
 
 
 def _commands(text: str) -> list[str]:
