@@ -22,6 +22,8 @@ O4. Everything else is sent as the file has it: travel moves, Z hops, retracts a
     unretracts (E-only moves, and wipes: moves that draw E back), temperatures,
     fans. So retracts and unretracts stay balanced and the slicer's travels and
     lifts are the ones that run.
+    An E-forward move kept this way runs where the file has the head: if dropped
+    moves left the head elsewhere, it travels there first (as in O7).
 O5. E stays the file's: E the file extruded that was not sent is the lag. Before
     the next sent line that names E in absolute E (M82, G90), a `G92 E<the file's
     E>` is sent if there is a lag; relative E (M83, G91) needs nothing. G92 E in
@@ -262,6 +264,11 @@ class ObjectFilter:
         if draws and self.skipping:
             yield from self._drop(line, given, forward)
             return
+        if forward > 0 and self.skipping:
+            # An unretract or a prime in place (O4) extrudes where the file has the
+            # head: after dropped moves the head is elsewhere, and the E would draw
+            # a line from there. It goes to the file's place first (O7's travel).
+            yield from self._return_head()
         if "E" in given and self._absolute_e and self._lag:
             yield self._added(f"G92 E{_number(file_before)}")
             self._lag = 0.0
