@@ -21,6 +21,7 @@ COMMANDS = (
     "drop-ok <every_n>",
     "halt",
     "stats",
+    "flush",
     "click",
     "action <text>",
     "sd",
@@ -36,7 +37,7 @@ def run(sim: Simulator, line: str, now: float) -> str:
         return _action(sim, line.split(None, 1)[1:], now)
     if name in ("sd", "sd-stop"):
         return _card(sim, stop=name == "sd-stop", args=args)
-    if name in ("reset", "close", "reopen", "halt", "stats", "click") and args:
+    if name in ("reset", "close", "reopen", "halt", "stats", "flush", "click") and args:
         raise ValueError(f"{name} takes no argument")
     if name == "reset":
         sim.firmware.reset(now)
@@ -50,6 +51,10 @@ def run(sim: Simulator, line: str, now: float) -> str:
         return _click(sim, now)
     elif name == "stats":
         return "ok " + json.dumps(_stats(sim))
+    elif name == "flush":
+        if sim.recorder is None:
+            raise ValueError("flush: this simulator keeps no record (--record)")
+        sim.recorder.flush(now, force=True)
     elif name in ("busy", "corrupt", "drop-ok"):
         _set(sim, name, _one_number(name, args), now)
     else:

@@ -32,7 +32,8 @@ Simulate a Marlin or GRBL controller on a pty (and/or TCP), paced at the
 serial baud rate in both directions. Prints one JSON line when ready:
 {"ready": true, "pty": ..., "tcp": ..., "pid": ...}.
 Control socket commands: reset, close, reopen, busy <seconds>,
-corrupt <share>, drop-ok <every_n>, halt, stats, click, action <text>,
+corrupt <share>, drop-ok <every_n>, halt, stats, flush (the record written
+out now), click, action <text>,
 sd (the card as JSON), sd-stop (the display stops the card's print).
 """
 

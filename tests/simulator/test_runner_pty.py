@@ -176,6 +176,16 @@ def test_record_lists_executed_commands(start_sim):
     wait_until(lambda: sim.record.read_text().splitlines() == expected, 5, "the record")
 
 
+def test_executed_asks_the_simulator_to_write_its_record_out_first(start_sim):
+    sim = start_sim("marlin")
+    host, _port = Host.open(sim.link)
+    host.write("M105\n")
+    host.until_oks(1)
+    host.write("M114\n")  # executed within 50 ms of M105: the record holds it back
+    host.until_oks(1)
+    assert sim.executed() == ["M105", "M114"]
+
+
 def test_tcp_client_talks_to_the_same_firmware_and_a_new_client_replaces_it(start_sim):
     sim = start_sim("grbl", "--tcp", "127.0.0.1:0")
     host, port = str(sim.info["tcp"]).rsplit(":", 1)
