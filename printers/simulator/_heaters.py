@@ -7,6 +7,9 @@ __all__ = ["AMBIENT", "Heater"]
 AMBIENT = 21.0
 #: Marlin's TEMP_WINDOW / TEMP_BED_WINDOW: close enough to count as reached.
 WINDOW = 1.0
+#: Rounding left by stepping a heater to its own reach time (°C): a heater this
+#: close to the window is in it, or a wait would ask for the time it is at, for ever.
+SLACK = 1e-6
 
 
 class Heater:
@@ -54,12 +57,12 @@ class Heater:
             return True
         if heating_only and self.temp >= self.target:
             return True
-        return abs(self.temp - self.target) <= WINDOW
+        return abs(self.temp - self.target) <= WINDOW + SLACK
 
     def reach_time(self) -> float:
         """When `reached()` will hold if nothing changes (valid after `update`)."""
         gap = abs(self.goal - self.temp) - WINDOW
         rate = self.heat_rate if self.goal > self.temp else self.cool_rate
-        if gap <= 0 or rate <= 0:
+        if gap <= SLACK or rate <= 0:
             return self._clock
         return self._clock + gap / rate
