@@ -106,6 +106,10 @@ class GrblProtocol:
         self.writing_file = False
         #: Command lines written so far (not counting realtime bytes or polls).
         self.lines_sent = 0
+        #: Command lines answered (ok or error:N) so far.
+        self.lines_acked = 0
+        #: Round trip write -> answer (s), a moving average (link statistics).
+        self.rtt = 0.0
         #: The latest status report, or None before the first.
         self.last_status: StatusReport | None = None
         #: `$C` check mode is on: lines are parsed, nothing moves.
@@ -125,6 +129,10 @@ class GrblProtocol:
         self._inbox = bytearray()
         self._outbox: deque[Line] = deque()  # accepted by send(), not yet written
         self._waiting: deque[Line] = deque()  # written, not yet answered
+        self._written_at: deque[float] = deque()  # when each waiting line was written
+        #: The last text prepared and what GRBL gets of it (wire text, EEPROM write,
+        #: dwell): can_send() and send() prepare the same line in turn.
+        self._prepared: tuple[str | None, str, bool, float] = (None, "", False, 0.0)
         self._realtime: list[tuple[bytes, str]] = []
         self._now: float | None = None
         self._progress_at = 0.0
@@ -142,7 +150,7 @@ class GrblProtocol:
         instead of the stream waiting forever.
         """
         try:
-            line = prepare_line(text, None, self.max_line_length, compact=self.compact)
+            line = self._prepare(text, None)
         except CommandRejected:
             return True
         blocker = self._blocker(line)
@@ -153,7 +161,7 @@ class GrblProtocol:
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
         self._now = now
-        line = prepare_line(text, tag, self.max_line_length, compact=self.compact)
+        line = self._prepare(text, tag)
         blocker = self._blocker(line)
         if blocker is not None:
             if blocker == _WAIT_SETTLED:
@@ -206,6 +214,7 @@ class GrblProtocol:
             self._events.append(Sent(line.text))
             self._settled = False
             self._waiting.append(line)
+            self._written_at.append(self._now or 0.0)
             self.lines_sent += 1
         return bytes(out)
 
@@ -213,6 +222,7 @@ class GrblProtocol:
         """Forget every line queued or in flight; realtime bytes still go out."""
         self._outbox.clear()
         self._waiting.clear()
+        self._written_at.clear()
         self._want_settled = False
         self._unreported_since = None
         self._stall_reported = False
@@ -298,18 +308,30 @@ class GrblProtocol:
 
     # -- internals -----------------------------------------------------------------
 
+    def _prepare(self, text: str, tag: object) -> Line:
+        """prepare_line, parsing each text once (CommandRejected as it raises)."""
+        known, wire, sync, dwell = self._prepared
+        if text is not known and text != known:
+            ready = prepare_line(text, None, self.max_line_length, compact=self.compact)
+            wire, sync, dwell = ready.text, ready.sync, ready.dwell
+            self._prepared = (text, wire, sync, dwell)
+        return Line(wire, tag, sync, dwell)
+
     def _blocker(self, line: Line) -> str | None:
         """Why *line* cannot go now, or None when it can."""
         if self._reset_sent_at is not None:
             return "a soft reset was sent and GRBL has not restarted yet"
-        pending = [*self._outbox, *self._waiting]
-        if any(other.sync for other in pending):
+        used, sync = 0, False
+        for queue in (self._outbox, self._waiting):
+            for other in queue:
+                used += len(other.text) + 1
+                sync = sync or other.sync
+        if sync:
             return "an EEPROM write is waiting for its answer"
-        if line.sync and pending:
+        if line.sync and (self._outbox or self._waiting):
             return "an EEPROM write goes only when nothing else is in flight"
         if line.sync and self.wait_for_idle and not self._settled:
             return _WAIT_SETTLED
-        used = sum(other.size for other in pending)
         if used + line.size > self.rx_buffer:
             return f"GRBL's RX buffer has {self.rx_buffer - used} bytes free"
         return None
@@ -362,6 +384,12 @@ class GrblProtocol:
         if not self._waiting:
             return  # the answer to a line abandoned since: nothing waits for it
         line = self._waiting.popleft()
+        written = self._written_at.popleft()
+        self.lines_acked += 1
+        elapsed = min(max(0.0, now - written), 1.0)
+        self.rtt = (
+            elapsed if self.lines_acked == 1 else self.rtt + 0.2 * (elapsed - self.rtt)
+        )
         self._progress_at = now
         self._stall_reported = False
         if answer.failed:

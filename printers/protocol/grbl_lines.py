@@ -38,6 +38,10 @@ def prepare_line(
 def _wire_text(text: str, max_line_length: int, *, compact: bool) -> str:
     if not text.strip():
         raise CommandRejected("empty command: there is nothing to send")
+    if text.isascii() and text.isprintable() and not any(c in text for c in "?!~"):
+        return _checked_length(
+            _compacted(text.strip(), compact=compact), max_line_length
+        )
     bad = next((char for char in text if not " " <= char <= "~"), None)
     if bad is not None:
         raise CommandRejected(
@@ -49,7 +53,10 @@ def _wire_text(text: str, max_line_length: int, *, compact: bool) -> str:
             f"{text!r} holds {realtime!r}, a GRBL realtime command that would act "
             "at once; send it alone with send_emergency()"
         )
-    wire = _compacted(text.strip(), compact=compact)
+    return _checked_length(_compacted(text.strip(), compact=compact), max_line_length)
+
+
+def _checked_length(wire: str, max_line_length: int) -> str:
     if len(wire) > max_line_length:
         raise CommandRejected(
             f"'{wire}' is {len(wire)} characters long; GRBL takes at most "

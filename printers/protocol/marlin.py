@@ -274,14 +274,28 @@ class MarlinProtocol(ReplyHandling):
         """Statistics: ack timeouts (T1)."""
         return self._recovery.timeouts
 
+    @property
+    def lines_acked(self) -> int:
+        """Statistics: lines acknowledged (internal ones too)."""
+        return self._recovery.acked
+
+    @property
+    def rtt(self) -> float:
+        """Statistics: the round trip write -> ok (s), a moving average."""
+        return self._recovery.rtt
+
     # -- the LinkProtocol contract ---------------------------------------------------
 
     def can_send(self, text: str) -> bool:
         """True when *text* may be queued now without breaking the window (W1-W3)."""
         window = self._window
-        if window.queued or window.rewinding or window.m110_live():
+        if window.queued or window.rewinding:
             return False
-        line = self._new_line(text.strip(), None)
+        return self._fits(self._new_line(text.strip(), None))
+
+    def _fits(self, line: Line) -> bool:
+        """W2, W3: room for *line* (or for the M110 that must go first, F2)."""
+        window = self._window
         if line.numbered and window.need_m110:
             line = m110_line(0, None)
         window.frame(line)
@@ -297,7 +311,10 @@ class MarlinProtocol(ReplyHandling):
                 f"line {line.wire!r} is {len(line.wire)} characters on the wire; the "
                 f"firmware takes at most {self._max_length} and truncates the rest"
             )
-        if self.in_flight and not self.can_send(line.text):
+        window = self._window
+        if self.in_flight and (
+            window.queued or window.rewinding or not self._fits(line)
+        ):
             raise LocalProtocolError(f"window full: cannot send {line.text!r} now")
         self._window.enqueue(line)
         self._pump()
@@ -412,6 +429,8 @@ def _validate(text: str) -> str:
     stripped = text.strip()
     if not stripped:
         raise CommandRejected(f"empty command {text!r}: there is nothing to send")
+    if stripped.isascii() and stripped.isprintable():  # " " to "~" only
+        return stripped
     for char in stripped:
         if not " " <= char <= "~":
             raise CommandRejected(

@@ -58,7 +58,10 @@ class Prober:
             oldest.sent_at is None
             or oldest.number is None
             or oldest.word in LONG_RUNNING
-            or sum(line.text.upper() == PROBE for line in live) >= MAX_PROBES
+            or (
+                len(live) >= MAX_PROBES
+                and sum(line.text.upper() == PROBE for line in live) >= MAX_PROBES
+            )
         ):
             return None
         return max(since, oldest.sent_at, self._probed_at or 0.0) + after + 4 * rtt

@@ -55,8 +55,9 @@ class Recovery:
         self._ack_timeout, self._busy_timeout = ack_timeout, busy_timeout
         #: T5, T6: numbered M105 probes for late oks.
         self.prober = Prober(window, probe_after)
-        #: Statistics: genuine resend requests served, ack timeouts.
-        self.resends = self.timeouts = 0
+        #: Statistics: genuine resend requests served, ack timeouts, lines
+        #: acknowledged (by their ok, or proven received by a later Resend).
+        self.resends = self.timeouts = self.acked = 0
         #: Round trip send -> ok (EWMA); sizes the drain delay and T2.
         self.rtt = _RTT_START
         self.reset()
@@ -276,6 +277,7 @@ class Recovery:
     # -- acknowledgements and resends ------------------------------------------------
 
     def _acknowledge(self, line: Line) -> None:
+        self.acked += 1
         if line.sent_at is not None:
             elapsed = min(self._window.clock - line.sent_at, _RTT_CAP)
             self.rtt += 0.2 * (elapsed - self.rtt)
@@ -323,6 +325,7 @@ class Recovery:
     def _ack_unsent_before(self, m: int) -> None:
         """Lines waiting to be re-sent that the firmware proved it has: skip, ack."""
         for old in self._window.skip_unsent_before(m):
+            self.acked += 1
             if not old.internal:
                 self._events.append(Ack(old.tag))
 

@@ -6,7 +6,7 @@ import re
 from collections import deque
 from dataclasses import dataclass
 
-from printers.protocol.checksum import format_line
+from printers.protocol.checksum import checksum
 from printers.protocol.history import LineHistory
 
 __all__ = ["Line", "LineWindow", "m110_line", "new_line"]
@@ -40,7 +40,7 @@ class Line:
 
 def new_line(text: str, tag: object, *, numbered: bool) -> Line:
     """A command as given to send(); an M110 is numbered by its own N (F1)."""
-    if match := _M110.match(text):
+    if text[:1] in "Mm" and (match := _M110.match(text)):
         return m110_line(int(match[1] or 0), tag)
     return Line(text, tag, numbered=numbered)
 
@@ -70,6 +70,9 @@ class LineWindow:
         self.outbox: deque[Line] = deque()
         self.urgent: list[Line] = []
         self.queued: deque[Line] = deque()
+        #: The last command text checksummed, and its checksum: a line is framed
+        #: several times on its way (can_send, send, the pump), its text once.
+        self._checksummed: tuple[str, int] = ("", 0)
         self.clear()
 
     def clear(self) -> None:
@@ -134,12 +137,25 @@ class LineWindow:
     # -- framing and room ------------------------------------------------------------
 
     def frame(self, line: Line) -> None:
-        """Fill in number and wire text, as the line would go out next."""
+        """Fill in number and wire text, as the line would go out next.
+
+        The same framing as checksum.format_line: the checksum of `N<n> <text>`
+        is that of `N<n> ` xor that of the text, and the text's is kept.
+        """
         if line.m110 is not None:
             line.number = line.m110
         elif line.numbered and not line.resend:
             line.number = self._projected_number(line)
-        line.wire = format_line(line.number, line.text) if line.numbered else line.text
+        if not line.numbered:
+            line.wire = line.text
+            return
+        text = line.text
+        known, value = self._checksummed
+        if text is not known and text != known:
+            value = checksum(text)
+            self._checksummed = (text, value)
+        head = f"N{line.number} "
+        line.wire = f"{head}{text}*{checksum(head) ^ value}"
 
     def _projected_number(self, line: Line) -> int:
         n = 1 if self.need_m110 else self.next_n
@@ -153,16 +169,24 @@ class LineWindow:
         return n
 
     def room_for(self, line: Line, max_lines: int) -> bool:
-        """W2-W3: may *line* go live now, with at most *max_lines* live?"""
-        if self.drain_until is not None or self.m110_live():
+        """W2-W3: may *line* go live now, with at most *max_lines* live?
+
+        Nothing goes while draining or while an M110 is live (F3); with nothing
+        live any one line may go (W3); else the line and byte budgets decide.
+        """
+        if self.drain_until is not None:
             return False
-        if not self.live:
+        live = self.live
+        if not live:
             return True
-        if line.m110 is not None:
+        if line.m110 is not None or len(live) >= max_lines:
             return False
-        return len(self.live) < max_lines and (
-            self.bytes_in_flight + line.cost <= self._rx_buffer
-        )
+        used = self.dead_bytes + len(line.wire) + 1
+        for other in live:  # one pass: an M110 live, and the bytes charged
+            if other.m110 is not None:
+                return False
+            used += len(other.wire) + 1
+        return used <= self._rx_buffer
 
     def add_probe(self, text: str) -> None:
         """T6: a numbered internal line straight to the wire, beyond the window."""

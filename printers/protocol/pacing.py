@@ -1,0 +1,147 @@
+"""When the worker may wait before reading: the bytes still on their way out, sans-IO.
+
+A serial link carries baud/10 bytes a second. Bytes the host wrote and the UART has
+not sent yet keep the firmware fed, so waking for every reply while they last buys
+the link nothing: each wake-up costs the worker the same (a system call, a turn of
+its loop, a write of one line), and on a small computer driving many printers that
+fixed cost is most of the CPU. The pacer says how long the worker may wait so that
+one wake-up takes every reply that came meanwhile and refills the window at once.
+
+Rules of the Pacer (`now` is always passed in; it reads no clock):
+
+P1  Bytes go out one after another at 10/baud seconds each: a write at *now* ends
+    at max(now, the end of the previous writes) + size * 10/baud (`busy_until`).
+P2  While at least two lines are in flight and the wire is busy until t, the worker
+    reads no sooner than t - margin (`read_at`): the margin covers waking up and
+    refilling the window before the wire runs dry. With one line in flight
+    (ping-pong, or the end of a job) there is nothing to gather: read at once.
+P2a The margin is twice the worker's own turnaround (a moving average of how late
+    the write after a paced wake-up came, sleep overshoot included), kept between
+    MIN_MARGIN and MAX_MARGIN: a slow or busy computer wakes earlier and gathers
+    fewer replies, but does not let the wire run dry.
+P4  A read that ended inside a reply line: the rest of the line comes at the baud
+    rate too. The worker waits, in the same turn of its loop, until a line as long
+    as the recent ones (`reply_bytes`, a moving average of whole lines read) would
+    be complete (`rest_at`), and reads again: a reply cut in two costs one turn.
+P3  A link faster than its baud rate (a board's native USB port ignores it): a read
+    is a sample when the model says more than SLACK_BYTES are still to go out. A
+    sample in which the firmware has acknowledged more than SLACK_BYTES of them is
+    evidence; EVIDENCE samples of it in a row (one that agrees with the model
+    starts the count again) prove the model wrong for this connection, and P2 is
+    off until `reset()`. One sample is no proof: a stale `ok` left in the port's
+    buffer acknowledges a line at once, and a host preempted between its write
+    and its clock misjudges the write. Every PROBE_EVERY-th wait of P2 is skipped
+    (the worker reads as replies come), so a fast link shows itself while paced.
+"""
+
+from __future__ import annotations
+
+__all__ = ["MAX_MARGIN", "MIN_MARGIN", "Pacer"]
+
+#: Bounds of the margin (s) before the wire runs dry at which the worker reads (P2a).
+#: A wake-up and a refill take a few tenths of a millisecond on a desktop, a few
+#: milliseconds on a loaded small board.
+MIN_MARGIN = 0.0003
+MAX_MARGIN = 0.004
+#: P2a: the turnaround assumed before any was measured (s).
+FIRST_TURNAROUND = 0.00025
+#: P3: bytes of disagreement a sample must show, how many samples in a row prove
+#: the model wrong, and how often a wait is skipped to take a sample.
+SLACK_BYTES = 32
+EVIDENCE = 3
+PROBE_EVERY = 16
+#: P4: the reply line length assumed before any was read (Marlin's ADVANCED_OK
+#: `ok N1234 P15 B3` and its newline).
+FIRST_REPLY_BYTES = 16.0
+#: P2 never waits longer than this (s), whatever the baud rate: emergencies and
+#: polls are bounded by the loop's own deadlines anyway.
+LONGEST_WAIT = 0.05
+
+
+class Pacer:
+    """Tracks what the wire still has to send and when the worker should read."""
+
+    def __init__(self, baud: int) -> None:
+        #: Seconds a byte takes on the wire; 0 for no baud rate (never paced).
+        self.byte_time = 10.0 / baud if baud > 0 else 0.0
+        #: P2a: the worker's turnaround after a paced wake-up (s), moving average.
+        self.turnaround = FIRST_TURNAROUND
+        #: P4: bytes of a reply line, newline included (moving average).
+        self.reply_bytes = FIRST_REPLY_BYTES
+        self.reset()
+
+    def reset(self) -> None:
+        """A new connection: nothing on the wire, and the model is trusted again."""
+        self.busy_until = 0.0
+        #: False once P3 found the link faster than its baud rate.
+        self.modelled = self.byte_time > 0
+        self._evidence = 0
+        self._waits = 0
+        #: The paced wake-up the next write answers (None: the last read was not paced).
+        self._due: float | None = None
+        #: P4: bytes read since the last newline, and when the last read came.
+        self._partial = 0
+        self._read_at = 0.0
+
+    @property
+    def margin(self) -> float:
+        """P2a: how long before the wire runs dry the worker reads."""
+        return min(MAX_MARGIN, max(MIN_MARGIN, 2 * self.turnaround))
+
+    def wrote(self, size: int, now: float) -> None:
+        """P1: *size* bytes were handed to the port at *now*; P2a learns from it."""
+        if self._due is not None:
+            late = min(max(0.0, now - self._due), MAX_MARGIN)
+            self.turnaround += 0.1 * (late - self.turnaround)
+            self._due = None
+        self.busy_until = max(now, self.busy_until) + size * self.byte_time
+
+    def unsent(self, now: float) -> float:
+        """Bytes written that the model says have not left the port yet."""
+        if not self.byte_time:
+            return 0.0
+        return max(0.0, self.busy_until - now) / self.byte_time
+
+    def received(self, data: bytes, now: float) -> None:
+        """P4: *data* was read at *now* (learns how long reply lines are)."""
+        self._read_at = now
+        end = data.rfind(b"\n")
+        if end < 0:
+            self._partial += len(data)
+            return
+        lines = data.count(b"\n", 0, end + 1)
+        mean = (self._partial + end + 1) / lines
+        self.reply_bytes += 0.2 * (mean - self.reply_bytes)
+        self._partial = len(data) - end - 1
+
+    def acknowledged(self, bytes_in_flight: int, now: float) -> None:
+        """P3: after replies were read, *bytes_in_flight* still wait for an answer."""
+        unsent = self.unsent(now)
+        if not self.modelled or unsent <= SLACK_BYTES:
+            return
+        if bytes_in_flight + SLACK_BYTES < unsent:
+            self._evidence += 1
+            self.modelled = self._evidence < EVIDENCE
+        else:
+            self._evidence = 0
+
+    def read_at(self, now: float, lines_in_flight: int) -> float:
+        """P2: the time to read at (*now* when there is nothing to wait for)."""
+        self._due = None
+        if not self.modelled or lines_in_flight < 2:
+            return now
+        wake = self.busy_until - self.margin
+        if wake <= now:
+            return now
+        self._waits += 1
+        if self._waits % PROBE_EVERY == 0:
+            return now  # P3: this read is a sample
+        self._due = min(wake, now + LONGEST_WAIT)
+        return self._due
+
+    def rest_at(self, now: float) -> float | None:
+        """P4: when the reply line the last read cut should be whole (None: no cut)."""
+        if not self._partial or not self.modelled:
+            return None
+        missing = max(0.0, self.reply_bytes - self._partial)
+        return min(self._read_at + (missing + 0.5) * self.byte_time, now + LONGEST_WAIT)
