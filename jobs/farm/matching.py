@@ -1,0 +1,219 @@
+"""Which printer a waiting farm job goes to, and why it waits when none.
+
+A printer can take a farm job when it is enabled, takes farm jobs (`farm`), is a
+3D printer (the farm analyses files as prints; GRBL machines take none), is
+`idle` (connected, bed confirmed clear: `waitstart` is not), its worker holds its
+lease (a dead worker's row may still say idle), no job of its own is queued or
+running, and it meets the job's requirements (`jobs.farm.requirements`).
+
+Among the printers that can take a job, the dispatcher prefers the one with the
+smallest build volume that fits, so the large machines stay free for the parts
+only they can print; then the one idle longest (its last job ended first: the
+work and the wear spread evenly); then by slug, so the choice is repeatable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
+
+from django.db.models import Exists, Max, OuterRef
+from django.utils import timezone
+
+from jobs.farm.models import FarmJob
+from jobs.farm.requirements import (
+    Part,
+    PrinterFacts,
+    box_of,
+    matching,
+    volume_size,
+    why_none_match,
+)
+from jobs.farm.storing import WAITING_FOR_ANALYSIS
+from jobs.models import FileAnalysis, Job
+from printers.driver import LinkConfig
+from printers.models import Printer
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Sequence
+
+#: Job states that keep a printer from taking a farm job.
+OWN_WORK = (Job.State.QUEUED, Job.State.PRINTING, Job.State.PAUSED)
+#: Printers named in a "busy" reason before "and n more".
+NAMED = 4
+_NEVER = datetime.min.replace(tzinfo=UTC)
+
+
+def farm_printers() -> list[PrinterFacts]:
+    """Every printer the farm may use, with what keeps it from a job now (if any)."""
+    own_work = Job.objects.filter(printer=OuterRef("pk"), state__in=OWN_WORK)
+    rows = (
+        Printer.objects.filter(enabled=True, farm=True)
+        .exclude(firmware=Printer.Firmware.GRBL)
+        .select_related("worker_host")
+        .annotate(has_work=Exists(own_work), last_end=Max("jobs__finished_at"))
+        .order_by("slug")
+    )
+    return [facts_of(p, has_work=p.has_work, last_end=p.last_end) for p in rows]
+
+
+def facts_of(
+    printer: Printer, *, has_work: bool, last_end: datetime | None = None
+) -> PrinterFacts:
+    """What the matcher knows of *printer*; `extra["busy"]` says why it cannot take a
+    job now ("" when it can)."""
+    return PrinterFacts(
+        slug=printer.slug,
+        material=printer.material,
+        colour=printer.colour,
+        nozzle=printer.nozzle_diameter,
+        profile=printer.profile,
+        tags=tuple(printer.tags or ()),
+        volume=box_of(printer.build_volume),
+        command_limit=LinkConfig.from_printer(printer).command_limit,
+        extra={
+            "pk": printer.pk,
+            "name": printer.name,
+            "host": printer.worker_host.name if printer.worker_host_id else "",
+            "busy": busy_reason(printer, has_work=has_work),
+            "last_end": last_end,
+        },
+    )
+
+
+def busy_reason(printer: Printer, *, has_work: bool) -> str:
+    """Why *printer* cannot take a farm job now, in a few words ("" if it can)."""
+    if not printer.enabled or not printer.farm:
+        return "takes no farm jobs"
+    expires = printer.lease_expires_at
+    if printer.state == Printer.State.OFFLINE:
+        return "offline"
+    if expires is None or expires <= timezone.now():
+        return "offline (no worker holds it)"
+    if printer.state == Printer.State.WAITSTART:
+        return "waiting for its bed to be cleared"
+    if printer.state != Printer.State.IDLE:
+        return Printer.State(printer.state).label
+    if has_work:
+        return "has a job queued"
+    return ""
+
+
+def preference(printer: PrinterFacts) -> tuple[float, datetime, str]:
+    """Smallest build volume first, then idle longest, then slug (module docstring)."""
+    return (
+        volume_size(printer.volume),
+        printer.extra.get("last_end") or _NEVER,
+        printer.slug,
+    )
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Where a farm job goes now (`printer`), or why it waits (`reason`)."""
+
+    printer: PrinterFacts | None = None
+    reason: str = ""
+    #: The printers that meet its requirements, free or not.
+    matching: list[PrinterFacts] = field(default_factory=list)
+
+
+def part_of(farm_job: FarmJob) -> Part | str:
+    """The file's box and longest command, or why they are not known yet."""
+    analysis = farm_job.analysis
+    if analysis is None:
+        return WAITING_FOR_ANALYSIS
+    if analysis.state == FileAnalysis.State.FAILED:
+        return (
+            f"the file's analysis failed ({analysis.reason or 'no reason given'}): "
+            "without its size no printer can be chosen; analyse it again or cancel"
+        )
+    if analysis.state != FileAnalysis.State.DONE:
+        progress = analysis.as_dict(size=farm_job.size_bytes).get("progress")
+        return WAITING_FOR_ANALYSIS + (
+            f" ({progress:g} % read)" if progress is not None else ""
+        )
+    return Part(
+        box=box_of(analysis.summary.get("bbox")), longest=farm_job.longest_command
+    )
+
+
+def decide(
+    farm_job: FarmJob, printers: Sequence[PrinterFacts], taken: Iterable[str] = ()
+) -> Decision:
+    """Where *farm_job* goes among *printers* (*taken*: slugs given a job already in
+    this pass), or why it waits."""
+    part = part_of(farm_job)
+    if isinstance(part, str):
+        return Decision(reason=part)
+    req = farm_job.requirements
+    fitting = matching(req, part, printers)
+    if not fitting:
+        return Decision(reason=why_none_match(req, part, printers))
+    gone = set(taken)
+    free = [p for p in fitting if not p.extra["busy"] and p.slug not in gone]
+    if not free:
+        return Decision(reason=waiting_reason(fitting, gone), matching=fitting)
+    return Decision(printer=min(free, key=preference), matching=fitting)
+
+
+def waiting_reason(fitting: Sequence[PrinterFacts], taken: set[str]) -> str:
+    """`every matching printer is busy: mk3-a printing, mk3-b waiting for its bed to
+    be cleared`."""
+    states = [
+        f"{p.slug} {'was just given a job' if p.slug in taken else p.extra['busy']}"
+        for p in fitting
+    ]
+    more = len(states) - NAMED
+    listed = ", ".join(states[:NAMED]) + (f" and {more} more" if more > 0 else "")
+    one = len(fitting) == 1
+    return (
+        f"the one matching printer is busy: {listed}"
+        if one
+        else f"every matching printer is busy: {listed}"
+    )
+
+
+def waiting_jobs(limit: int = 500) -> list[FarmJob]:
+    """The waiting farm jobs in queue order (priority, deadline, age)."""
+    return list(
+        FarmJob.objects.filter(state=FarmJob.State.WAITING)
+        .select_related("analysis")
+        .defer("analysis__result")
+        .order_by(*FarmJob._meta.ordering)[:limit]
+    )
+
+
+def plan(
+    farm_jobs: Sequence[FarmJob], printers: Sequence[PrinterFacts]
+) -> list[tuple[FarmJob, Decision]]:
+    """What a dispatcher's pass would do now: each job in queue order takes the best
+    free printer left (the farm view's "would go to")."""
+    taken: set[str] = set()
+    out = []
+    for farm_job in farm_jobs:
+        decision = decide(farm_job, printers, taken)
+        if decision.printer is not None:
+            taken.add(decision.printer.slug)
+        out.append((farm_job, decision))
+    return out
+
+
+def printer_summary(printer: PrinterFacts) -> dict[str, Any]:
+    """A farm printer as the farm API lists it."""
+    return {
+        "slug": printer.slug,
+        "name": printer.extra.get("name", ""),
+        "host": printer.extra.get("host", ""),
+        "material": printer.material,
+        "colour": printer.colour,
+        "nozzle_diameter": printer.nozzle,
+        "profile": printer.profile,
+        "tags": list(printer.tags),
+        "build_volume": None
+        if printer.volume is None
+        else {"min": list(printer.volume[0]), "max": list(printer.volume[1])},
+        "free": not printer.extra.get("busy"),
+        "busy": printer.extra.get("busy", ""),
+    }
