@@ -1,0 +1,437 @@
+"""`make bench`, the farm section: a full-size print farm on this machine.
+
+PostgreSQL, Redis, one control plane and 3 worker hosts (each `runhost` in its own
+process group and data directory) driving 32 simulated printers with motion timing
+on (`--time-scale`, 0.25 by default: moves take a quarter of the firmware's time,
+four times a real print's line rate, so a machine that keeps up here keeps up at
+real speed), printing real slicer files (tests/farmrig). In one run, side by side:
+
+1. Single-printer baseline: each file printed alone on one printer of the farm.
+2. The farm: 50 jobs with mixed requirements uploaded to the farm queue, while 100
+   websocket clients follow the printers and an API load sends 50 GET requests a
+   second; every job checked (once, on a matching printer, each simulator's record
+   its jobs' files). Per job: its time against the baseline's (the slowdown) and
+   how many printers were printing meanwhile; per printer: its worker's CPU
+   (% of a core, from /proc/<pid>/stat) and CPU per 1,000 lines; the web's p95.
+3. The faults of tests/farmrun at full size (PostgreSQL away, Redis away, a
+   worker host SIGKILLed), one fresh farm each; a dispatcher killed mid-claim is
+   tests/farm/test_dispatcher_postgres.py.
+
+Prints PASS/FAIL for each of issue 11's figures and writes bench-farm.json.
+
+    python -m bench.farm [--printers 32] [--jobs 50] [--time-scale 0.25] [--no-faults]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import signal
+import statistics
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tests.conftest import wait_for
+from tests.farmrig import checks
+from tests.farmrig.clients import ApiLoad, Crowd, Watcher
+from tests.farmrig.fleet import extent, meets
+from tests.farmrig.processes import cpu_seconds
+from tests.farmrig.rig import Farm, FarmConfig
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Issue 11's goals.
+PRINTERS_GOAL = 32
+SLOWDOWN_GOAL = 0.02
+CPU_PER_1K_GOAL = 0.1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hosts", type=int, default=3)
+    parser.add_argument("--printers", type=int, default=PRINTERS_GOAL)
+    parser.add_argument("--jobs", type=int, default=50)
+    parser.add_argument("--time-scale", type=float, default=0.25)
+    parser.add_argument("--clients", type=int, default=100)
+    parser.add_argument("--rate", type=float, default=50.0, help="API requests/s")
+    parser.add_argument("--long", action="store_true", help="add the long files")
+    parser.add_argument("--no-faults", dest="faults", action="store_false")
+    parser.add_argument("--out", default=str(ROOT / "bench-farm.json"))
+    options = parser.parse_args(argv)
+    # A SIGTERM unwinds (every runhost and simulator of the farm is stopped).
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    config = FarmConfig(
+        hosts=options.hosts, printers=options.printers, jobs=options.jobs,
+        time_scale=options.time_scale, lease_seconds=10.0,
+        long_files=options.long, patience=8.0,
+    )  # fmt: skip
+    root = Path(tempfile.mkdtemp(prefix="printhost-bench-farm-"))
+    out = Path(options.out)
+    try:
+        report = run_farm(root / "farm", config, options)
+        verdicts = _write(report, out)
+        print("\n" + summary(report) + "\n\n" + "\n".join(verdicts), flush=True)
+        if options.faults:
+            report["faults"] = run_faults(root, config)
+            verdicts = _write(report, out)
+            print("\n" + "\n".join(v for v in verdicts if "fault:" in v))
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    return 1 if any(v.startswith("FAIL") for v in verdicts) else 0
+
+
+def _write(report: dict, out: Path) -> list[str]:
+    """The verdicts so far, written with the figures (a long run keeps what it has)."""
+    verdicts = judge(report)
+    report["verdicts"] = verdicts
+    out.write_text(json.dumps(report, indent=1, default=str))
+    return verdicts
+
+
+# -- the farm -------------------------------------------------------------------------
+
+
+def run_farm(folder: Path, config: FarmConfig, options: argparse.Namespace) -> dict:
+    farm = Farm(folder, config)
+    report: dict[str, Any] = {"config": {**config.__dict__, "env": None}}
+    started = time.monotonic()
+    try:
+        farm.setup()
+        farm.start()
+        report["start_seconds"] = round(time.monotonic() - started, 1)
+        print(f"farm: {config.printers} printers on {config.hosts} hosts up in "
+              f"{report['start_seconds']} s", flush=True)  # fmt: skip
+        report["baseline"] = baseline(farm)
+        print(f"baseline: {report['baseline']}", flush=True)
+        report.update(farm_phase(farm, report["baseline"], options))
+    except Exception:
+        report["error"] = traceback.format_exc()
+        print(report["error"], flush=True)
+    finally:
+        farm.close()
+    return report
+
+
+def baseline(farm: Farm) -> dict[str, float]:
+    """Seconds each file of the mix takes printed alone (one printer, the farm idle)."""
+    times = {}
+    for job in {j.file: j for j in farm.jobs}.values():
+        slug = next(p.slug for p in farm.printers if meets({}, p, extent(job.file)))
+        job_id = farm.upload_to(slug, job)
+        farm.tend(lambda j=job_id: _state(farm, j) in ("completed", "failed"), 600,
+                  f"the baseline of {job.file}")  # fmt: skip
+        assert _state(farm, job_id) == "completed"
+        times[job.file] = _duration(farm, job_id)
+        farm.other_jobs.add(job_id)
+        farm.tend(lambda s=slug: _printer_state(farm, s) == "idle", 60, "a clear bed")
+    farm.record_offsets = {slug: len(sim.executed()) for slug, sim in farm.sims.items()}
+    return times
+
+
+def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) -> dict:
+    """The 50 jobs under web load; the figures and the checks."""
+    url = f"ws://127.0.0.1:{farm.control.port}/ws/printers"
+    slugs = [p.slug for p in farm.printers]
+    watchers = [
+        Watcher(f"{url}/{slugs[i % len(slugs)]}/", slugs[i % len(slugs)])
+        for i in range(options.clients)
+    ]
+    paths = [f"/printer/state/{s}" for s in slugs] + ["/printer/list", "/printer/farm"]
+    load = ApiLoad(farm.control.url, farm.operator, paths, options.rate)
+    crowd = Crowd(watchers, farm.operator, load)
+    crowd.start()
+    wait_for(crowd.connected, 60, "the websocket clients to connect")
+    cpu = CpuWatch(farm)
+    began = time.monotonic()
+    farm.upload()
+    farm.tend(lambda: cpu.sample() or farm.all_done(), 3600, "every farm job to run")
+    seconds = time.monotonic() - began
+    crowd.stop()
+    out: dict[str, Any] = {"farm_seconds": round(seconds, 1)}
+    out["checks"] = run_checks(farm)
+    out["jobs"] = job_figures(farm, base)
+    out["workers"] = cpu.figures()
+    received = sum(len(w.lines) for w in watchers)
+    out["web"] = {
+        "clients": len(watchers),
+        "client_reconnects": sum(w.reconnects for w in watchers),
+        "lines_received": received,
+        "api_rate": options.rate,
+        "api_requests": len(load.latencies) + load.errors,
+        "api_errors": load.errors,
+        "api_p95_ms": None if load.p95() is None else round(load.p95() * 1000, 1),
+        "api_median_ms": round(statistics.median(load.latencies) * 1000, 1)
+        if load.latencies
+        else None,
+    }
+    return out
+
+
+def run_checks(farm: Farm) -> dict[str, str]:
+    results = {}
+    for name, check in (
+        ("ran once", checks.jobs_ran_once),
+        ("matching printers", checks.matching_printers),
+        ("records match", checks.records_match),
+    ):
+        try:
+            check(farm)
+            results[name] = "ok"
+        except AssertionError as error:
+            results[name] = f"failed: {error}"
+    return results
+
+
+def _state(farm: Farm, job_id: int) -> str:
+    return farm.query("SELECT state FROM jobs_job WHERE id = %s", job_id)[0][0]
+
+
+def _printer_state(farm: Farm, slug: str) -> str:
+    return farm.query("SELECT state FROM printers_printer WHERE slug = %s", slug)[0][0]
+
+
+def _duration(farm: Farm, job_id: int) -> float:
+    start, end = farm.query(
+        "SELECT started_at, finished_at FROM jobs_job WHERE id = %s", job_id
+    )[0]
+    return (end - start).total_seconds()
+
+
+def job_figures(farm: Farm, base: dict[str, float]) -> list[dict]:
+    """Each farm job: its file, printer, time, slowdown against the baseline, and the
+    most printers printing at once while it ran."""
+    rows = farm.query(
+        "SELECT f.id, p.slug, j.started_at, j.finished_at, j.state FROM jobs_farmjob f "
+        "JOIN jobs_job j ON j.id = f.job_id JOIN printers_printer p ON p.id = j.printer_id"
+    )
+    spans = [(r[2], r[3]) for r in rows if r[2] and r[3]]
+    out = []
+    for farm_job, slug, start, end, state in rows:
+        if not (start and end):
+            continue
+        file = farm.uploaded[farm_job].file
+        seconds = (end - start).total_seconds()
+        out.append(
+            {
+                "farm_job": farm_job, "file": file, "printer": slug, "state": state,
+                "seconds": round(seconds, 2),
+                "slowdown": round(seconds / base[file] - 1, 4),
+                "concurrent": most_at_once(start, end, spans),
+            }
+        )  # fmt: skip
+    return out
+
+
+def most_at_once(start: object, end: object, spans: list[tuple]) -> int:
+    """The most of *spans* (start, end) running at one moment within [start, end]."""
+    points = [start, *(s for s, _ in spans if start <= s < end)]
+    return max(sum(1 for s, e in spans if s <= point < e) for point in points)
+
+
+class CpuWatch:
+    """Each run_printer's CPU seconds and lines acked from the farm's start on."""
+
+    def __init__(self, farm: Farm) -> None:
+        self.farm = farm
+        self.first: dict[str, tuple[int, float, float]] = {}
+        self.last: dict[str, tuple[int, float, float]] = {}
+        self.lines_at_start = self._lines()
+        self._next = 0.0
+
+    def _lines(self) -> dict[str, int]:
+        rows = self.farm.query(
+            "SELECT p.slug, COALESCE(SUM(j.lines_acked), 0) FROM printers_printer p "
+            "LEFT JOIN jobs_job j ON j.printer_id = p.id GROUP BY p.slug"
+        )
+        return {slug: int(n) for slug, n in rows}
+
+    def sample(self) -> None:
+        now = time.monotonic()
+        if now < self._next:
+            return
+        self._next = now + 1.0
+        for runhost in self.farm.runhosts.values():
+            for slug, pid in runhost.workers().items():
+                used = cpu_seconds(pid)
+                if used is None:
+                    continue
+                if slug not in self.first or self.first[slug][0] != pid:
+                    self.first[slug] = (pid, used, now)
+                self.last[slug] = (pid, used, now)
+
+    def figures(self) -> dict[str, Any]:
+        lines = self._lines()
+        per = {}
+        for slug, (_pid, used, at) in self.last.items():
+            _first_pid, first_used, first_at = self.first[slug]
+            wall = at - first_at
+            done = lines.get(slug, 0) - self.lines_at_start.get(slug, 0)
+            cpu = used - first_used
+            per[slug] = {
+                "cpu_share": round(cpu / wall, 4) if wall > 0 else None,
+                "cpu_s_per_1k_lines": round(cpu / done * 1000, 4) if done else None,
+                "lines": done,
+            }
+        shares = [v["cpu_share"] for v in per.values() if v["cpu_share"] is not None]
+        per_k = [
+            v["cpu_s_per_1k_lines"]
+            for v in per.values()
+            if v["cpu_s_per_1k_lines"] is not None
+        ]
+        return {
+            "per_printer": per,
+            "cpu_share_mean": round(statistics.mean(shares), 4) if shares else None,
+            "cpu_share_total": round(sum(shares), 3) if shares else None,
+            "cpu_s_per_1k_lines_median": round(statistics.median(per_k), 4)
+            if per_k
+            else None,
+        }
+
+
+# -- the faults at full size ---------------------------------------------------------
+
+
+def run_faults(root: Path, config: FarmConfig) -> dict[str, str]:
+    """Each fault test of tests/farmrun against a fresh full-size farm (one round of
+    jobs: one per printer)."""
+    from tests.farmrun import (
+        test_farm_database_away,
+        test_farm_host_killed,
+        test_farm_redis_away,
+    )
+
+    tests: dict[str, Callable[..., None]] = {
+        "postgresql away": test_farm_database_away.test_every_print_completes_with_the_database_away_for_longer_than_the_lease,
+        "redis away": test_farm_redis_away.test_prints_go_on_and_clients_catch_up_with_redis_away,
+        "worker host killed": test_farm_host_killed.test_a_killed_worker_host_leaves_its_runs_interrupted_and_resumable,
+    }
+    results = {}
+    for index, (name, test) in enumerate(tests.items()):
+        farms: list[Farm] = []
+        make = _factory(root / f"fault{index}", config, farms)
+        began = time.monotonic()
+        try:
+            test(make)
+            results[name] = f"ok ({time.monotonic() - began:.0f} s)"
+        except Exception as error:
+            results[name] = f"failed: {type(error).__name__}: {error}"[:2000]
+        finally:
+            for farm in farms:
+                farm.close()
+        print(f"fault {name}: {results[name][:300]}", flush=True)
+    return results
+
+
+def _factory(folder: Path, config: FarmConfig, farms: list[Farm]) -> Callable:
+    """What a fault test asks for (`make_farm`): a full-size farm, set up."""
+
+    def make(**changes: object) -> Farm:
+        values = {**config.__dict__, "jobs": config.printers, "lease_seconds": 3.0}
+        farm = Farm(folder, FarmConfig(**{**values, **changes}))
+        farms.append(farm)
+        farm.setup()
+        return farm
+
+    return make
+
+
+# -- the verdicts ----------------------------------------------------------------------
+
+
+def driven_within(jobs: list[dict], goal: float = SLOWDOWN_GOAL) -> int:
+    """The most printers printing at once such that every job that ran with at most
+    that many printers finished within *goal* of its single-printer time."""
+    best = 0
+    for level in sorted({j["concurrent"] for j in jobs}):
+        if all(j["slowdown"] <= goal for j in jobs if j["concurrent"] <= level):
+            best = level
+        else:
+            break
+    return best
+
+
+def judge(report: dict) -> list[str]:
+    if "error" in report:
+        return [f"FAIL the farm did not run: {report['error'].splitlines()[-1]}"]
+    lines = []
+    for name, result in report["checks"].items():
+        lines.append(
+            f"{'PASS' if result == 'ok' else 'FAIL'} farm: {name}: {result[:300]}"
+        )
+    jobs = report["jobs"]
+    driven = driven_within(jobs)
+    lines.append(
+        f"{'PASS' if driven >= PRINTERS_GOAL else 'FAIL'} printers one 2-core machine "
+        f"drives with every job within {SLOWDOWN_GOAL:.0%} of its single-printer "
+        f"time: {driven} >= {PRINTERS_GOAL} (the control plane, PostgreSQL, Redis "
+        f"and the simulators on the same cores)"
+    )
+    slow = [j["slowdown"] for j in jobs]
+    worst = max(slow) if slow else None
+    lines.append(
+        f"{'PASS' if worst is not None and worst < SLOWDOWN_GOAL else 'FAIL'} stream "
+        f"slowdown with {report['web']['clients']} websocket clients and "
+        f"{report['web']['api_rate']:g} API requests/s: worst {_pct(worst)}, median "
+        f"{_pct(statistics.median(slow) if slow else None)} < {SLOWDOWN_GOAL:.0%}"
+    )
+    lines.append(f"INFO web p95 latency {report['web']['api_p95_ms']} ms "
+                 f"({report['web']['api_errors']} errors)")  # fmt: skip
+    per_k = report["workers"]["cpu_s_per_1k_lines_median"]
+    lines.append(
+        f"{'PASS' if per_k is not None and per_k <= CPU_PER_1K_GOAL else 'FAIL'} "
+        f"worker CPU per 1,000 lines in the farm: {per_k} s <= {CPU_PER_1K_GOAL} s"
+    )
+    for name, result in report.get("faults", {}).items():
+        lines.append(f"{'PASS' if result.startswith('ok') else 'FAIL'} fault: {name}: "
+                     f"{result[:300]}")  # fmt: skip
+    return lines
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:+.2%}"
+
+
+def summary(report: dict) -> str:
+    if "error" in report:
+        return "farm: did not run"
+    workers = report["workers"]
+    jobs = report["jobs"]
+    rows = [
+        f"farm: {report['config']['printers']} printers, {report['config']['hosts']} "
+        f"worker hosts, {len(jobs)} jobs in {report['farm_seconds']} s at time scale "
+        f"{report['config']['time_scale']:g}",
+        "baseline (one printer alone): "
+        + ", ".join(f"{Path(f).stem} {s:.1f} s" for f, s in report["baseline"].items()),
+        f"most printers printing at once: {max((j['concurrent'] for j in jobs), default=0)}",
+        *slowdown_rows(jobs),
+        f"worker CPU per printer: mean {_pct(workers['cpu_share_mean'])} of a core, "
+        f"all workers {workers['cpu_share_total']} cores; per 1,000 lines (median) "
+        f"{workers['cpu_s_per_1k_lines_median']} s",
+        f"web: {report['web']}",
+    ]
+    return "\n".join(rows)
+
+
+def slowdown_rows(jobs: list[dict]) -> list[str]:
+    """Slowdown against the baseline by how many printers were printing meanwhile."""
+    rows = []
+    for low, high in ((1, 8), (9, 16), (17, 24), (25, 32), (33, 10**6)):
+        these = [j["slowdown"] for j in jobs if low <= j["concurrent"] <= high]
+        if these:
+            rows.append(
+                f"  {low}-{high if high < 10**6 else ''} printing at once: "
+                f"{len(these)} jobs, slowdown median {_pct(statistics.median(these))}, "
+                f"worst {_pct(max(these))}"
+            )
+    return rows
+
+
+if __name__ == "__main__":
+    sys.exit(main())
