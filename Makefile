@@ -19,7 +19,7 @@ format: install
 	$(BIN)/ruff check --fix . && $(BIN)/ruff format .
 
 test: install
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 3 --dist worksteal
 
 test-fast: install
 	$(BIN)/python -m pytest tests/protocol tests/streaming
@@ -42,7 +42,7 @@ sim: install
 	$(BIN)/python -m printers.simulator marlin --link ./printer0 --baud 250000
 
 bench: install
-	$(BIN)/python -m bench.streaming && $(BIN)/python -m bench.analysis && $(BIN)/python -m bench.eta
+	$(BIN)/python -m bench.streaming && $(BIN)/python -m bench.analysis && $(BIN)/python -m bench.eta && $(BIN)/python -m bench.farm
 
 clean:
-	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis bench-results.json bench-soak.json bench-analysis.json bench-eta.json
+	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis bench-results.json bench-soak.json bench-analysis.json bench-eta.json bench-farm.json

@@ -8,7 +8,7 @@ from django.contrib import admin, messages
 
 from jobs import analysing
 from jobs.history import HistoryEntry
-from jobs.models import ACTIVE_STATES, FileAnalysis, Job
+from jobs.models import ACTIVE_STATES, FarmJob, FileAnalysis, Job
 from jobs.services import delete_job_file, request_action
 from printers.models import Printer
 
@@ -235,3 +235,32 @@ class HistoryEntryAdmin(admin.ModelAdmin):
     @admin.display(description="layers")
     def layers_reached(self, entry: HistoryEntry) -> str:
         return f"{entry.layer} / {entry.layers}" if entry.layers else "-"
+
+
+@admin.register(FarmJob)
+class FarmJobAdmin(admin.ModelAdmin):
+    """The farm queue: requirements and order may be edited while a job waits; what
+    the dispatcher writes (state, reason, where it went) is read-only."""
+
+    list_display = [
+        "id", "name", "state", "priority", "deadline", "material", "colour",
+        "nozzle_diameter", "printer", "reason", "created_at",
+    ]  # fmt: skip
+    list_filter = ["state", "material"]
+    search_fields = ["name", "sha256", "origin"]
+    ordering = FarmJob._meta.ordering
+    readonly_fields = [
+        "name", "file", "size_bytes", "line_count", "sha256", "longest_command",
+        "analysis", "state", "reason", "job", "printer", "origin", "uploaded_by",
+        "created_at", "assigned_at", "cancelled_at",
+    ]  # fmt: skip
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False  # farm jobs come from uploads (their checks, their file)
+
+    def get_readonly_fields(
+        self, request: HttpRequest, obj: FarmJob | None = None
+    ) -> list[str]:
+        if obj is not None and obj.state != FarmJob.State.WAITING:
+            return [field.name for field in FarmJob._meta.fields]
+        return list(self.readonly_fields)

@@ -36,7 +36,7 @@ from jobs.analysis.analyser import Analyser
 from jobs.analysis.limits import BadProfile, Materials, MotionLimits, defaults_for
 from jobs.analysis.result import Analysis
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode, metadata_of
-from jobs.models import FileAnalysis, Job
+from jobs.models import FarmJob, FileAnalysis, Job
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -186,12 +186,16 @@ def _release(pk: int, worker: str) -> None:
 
 def stored_file(analysis: FileAnalysis) -> Path | None:
     """A stored file with the analysis's SHA-256 (any job that holds it)."""
-    files = (
-        Job.objects.filter(sha256=analysis.sha256)
+    files = [
+        *Job.objects.filter(sha256=analysis.sha256)
         .exclude(file="")
         .values_list("file", flat=True)
-        .distinct()
-    )
+        .distinct(),
+        # A farm job's file waits in the farm folder until a printer takes it.
+        *FarmJob.objects.filter(sha256=analysis.sha256)
+        .exclude(file="")
+        .values_list("file", flat=True),
+    ]
     root = Path(settings.JOB_STORAGE_DIR)
     for name in files:
         try:
@@ -217,6 +221,9 @@ def _analyse(
     )
     commands = (
         Job.objects.filter(sha256=analysis.sha256)
+        .values_list("line_count", flat=True)
+        .first()
+        or FarmJob.objects.filter(sha256=analysis.sha256)
         .values_list("line_count", flat=True)
         .first()
         or 0

@@ -101,7 +101,10 @@ def command_of(raw: bytes) -> str:
     text = clean_line(raw.decode("utf-8", "replace"))
     if not text:
         return ""
-    text = "".join(" " if char.isspace() else char for char in text)
+    # Printable ASCII (almost every line) holds no whitespace but the space: the
+    # character-by-character pass below is for the rare tab or exotic byte.
+    if not (text.isascii() and text.isprintable()):
+        text = "".join(" " if char.isspace() else char for char in text)
     if _MESSAGE.match(text):
         text = _ascii_message(text)
     return text

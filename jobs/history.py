@@ -267,6 +267,17 @@ def _metadata(job: Job) -> dict[str, Any]:
     return {key: summary[key] for key in METADATA_KEYS if key in summary}
 
 
+def forget_run(job_id: object) -> int:
+    """Remove the entry of *job_id*'s current run: it was taken for ended
+    (`printers.reaper`) but goes on; it is written again when it really ends."""
+    from jobs.models import Job
+
+    started = Job.objects.filter(pk=job_id).values_list("started_at", flat=True)
+    return HistoryEntry.objects.filter(
+        job_number=job_id, started_at__in=started
+    ).delete()[0]
+
+
 def record_run(job_id: object) -> HistoryEntry | None:
     """Write (or rewrite, H1) the history entry of *job_id*'s run, now ended.
 

@@ -10,6 +10,7 @@ from django.conf import settings
 from django.db import models
 from django.utils import timezone
 
+from jobs import hostcache
 from jobs.paths import inside
 from printers.models import Printer
 
@@ -196,8 +197,10 @@ class Job(models.Model):
     @property
     def path(self) -> Path:
         """Absolute path of the stored file (PathRefused if the row names one outside
-        the job storage: a row is never trusted to stay in it)."""
-        return inside(Path(settings.JOB_STORAGE_DIR), self.file)
+        the job storage: a row is never trusted to stay in it). On a worker host,
+        the fetched copy once its SHA-256 checks out (`jobs.hostcache`)."""
+        stored = inside(Path(settings.JOB_STORAGE_DIR), self.file)
+        return hostcache.local_path(stored, self.sha256)
 
     @property
     def on_sd_card(self) -> bool:
@@ -388,5 +391,6 @@ def running_job(printer_id: int) -> Job | None:
 
 
 # A model kept in its own module: imported here so Django finds it.
+from jobs.farm.models import FarmJob  # noqa: E402, F401
 from jobs.history import HistoryEntry  # noqa: E402, F401
 from jobs.plans import ResumePlan  # noqa: E402, F401

@@ -5,6 +5,7 @@ The printer's worker picks the rows up; nothing here touches a port.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import uuid
@@ -113,20 +114,8 @@ def enqueue_upload(
     """
     name = safe_name(name)
     staging = inside(storage_dir(printer), f".upload-{uuid.uuid4().hex}", hidden=True)
-    temp_path = getattr(upload, "temporary_file_path", None)
     try:
-        if temp_path is not None:
-            # Move before closing: closing a TemporaryUploadedFile deletes it.
-            shutil.move(temp_path(), staging)
-            upload.close()  # type: ignore[union-attr]
-        else:
-            with staging.open("wb") as out:
-                chunks = getattr(upload, "chunks", None)
-                if chunks is not None:
-                    for chunk in chunks():
-                        out.write(chunk)
-                else:
-                    shutil.copyfileobj(upload, out, 1024 * 1024)
+        receive_upload(upload, staging)
         job = enqueue_job(
             printer,
             staging,
@@ -146,6 +135,51 @@ def enqueue_upload(
             f"{name}: SHA-256 {job.sha256} does not match the given {sha256.lower()}"
         )
     return job
+
+
+def receive_upload(upload: UploadedFile | BinaryIO, target: Path) -> None:
+    """Write *upload* to *target*: a Django upload already on disk is moved, any
+    other is streamed in chunks (never whole in memory)."""
+    temp_path = getattr(upload, "temporary_file_path", None)
+    if temp_path is not None:
+        # Move before closing: closing a TemporaryUploadedFile deletes it.
+        shutil.move(temp_path(), target)
+        upload.close()  # type: ignore[union-attr]
+        return
+    with target.open("wb") as out:
+        chunks = getattr(upload, "chunks", None)
+        if chunks is not None:
+            for chunk in chunks():
+                out.write(chunk)
+        else:
+            shutil.copyfileobj(upload, out, 1024 * 1024)
+
+
+def enqueue_checked_file(
+    printer: Printer,
+    source: Path,
+    *,
+    name: str,
+    facts: FileFacts,
+    stored_as: str,
+    origin: str = "",
+    user: AbstractBaseUser | None = None,
+) -> Job:
+    """Queue a file that already passed the upload checks (a farm job's) on *printer*.
+
+    The file is hard-linked into the printer's storage as *stored_as* (copied where
+    the storage is on another file system), then the job is created at the end of
+    the queue and its analysis asked for, as for any upload. A file of that name
+    left by an attempt that did not commit is replaced. Call it inside the caller's
+    transaction: if that rolls back, the caller removes the link.
+    """
+    target = stored_file(printer, safe_name(stored_as))
+    target.unlink(missing_ok=True)
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copyfile(source, target)
+    return _create_job(printer, target, name, facts, origin, user=user)
 
 
 class ChecksumMismatch(BadGcode):

@@ -32,7 +32,7 @@ from django.db import transaction
 from django.db.models import Exists, OuterRef, Q
 from django.utils import timezone
 
-from jobs.models import FINISHED_STATES, FileAnalysis, Job, ResumePlan, Upload
+from jobs.models import FINISHED_STATES, FarmJob, FileAnalysis, Job, ResumePlan, Upload
 from jobs.paths import PathRefused, inside
 from printers.models import Printer
 
@@ -323,6 +323,8 @@ def _remove_analyses(
         .values_list("sha256", flat=True)
         .distinct()
     )
+    # A waiting farm job's analysis routes it (jobs/farm).
+    held |= set(FarmJob.objects.exclude(file="").values_list("sha256", flat=True))
     rows = 0
     settled = FileAnalysis.objects.filter(state__in=_SETTLED)
     after = 0

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 from django.contrib import admin, messages
 
 from jobs.services import emergency_stop, request_action
+from printers.hosts import WorkerHost
 from printers.models import Printer, QueuedCommand, ResponseLine
 
 if TYPE_CHECKING:
@@ -16,13 +17,22 @@ from printhost.access import admin_caller
 from printhost.audit import record
 
 #: Printer fields only a superuser may change (what the server opens and runs).
-SUPERUSER_FIELDS = ("port", "baud", "simulator")
+SUPERUSER_FIELDS = ("port", "baud", "simulator", "worker_host")
 
 
 @admin.register(Printer)
 class PrinterAdmin(admin.ModelAdmin):
-    list_display = ["name", "slug", "firmware", "port", "baud", "state", "enabled"]
-    list_filter = ["firmware", "state", "enabled"]
+    list_display = [
+        "name",
+        "slug",
+        "firmware",
+        "worker_host",
+        "port",
+        "material",
+        "state",
+        "enabled",
+    ]
+    list_filter = ["firmware", "state", "enabled", "worker_host", "material"]
     search_fields = ["name", "slug", "port"]
     prepopulated_fields = {"slug": ["name"]}
     readonly_fields = [
@@ -35,10 +45,24 @@ class PrinterAdmin(admin.ModelAdmin):
         "lease_owner",
         "lease_expires_at",
         "worker_seen_at",
+        "link_stats",
     ]
     actions = ["mark_bed_clear", "stop_now", "reconnect"]
     fieldsets = [
-        (None, {"fields": ["name", "slug", "enabled", "port", "baud", "firmware"]}),
+        (
+            None,
+            {
+                "fields": [
+                    "name",
+                    "slug",
+                    "enabled",
+                    "worker_host",
+                    "port",
+                    "baud",
+                    "firmware",
+                ]
+            },
+        ),
         (
             "Link",
             {
@@ -73,6 +97,22 @@ class PrinterAdmin(admin.ModelAdmin):
         (
             "File analysis (time estimates and filament)",
             {"fields": ["motion_profile", "filament_diameter", "filament_density"]},
+        ),
+        (
+            "Farm (what a farm job may ask for)",
+            {
+                "fields": [
+                    "farm",
+                    "profile",
+                    "tags",
+                    "build_volume",
+                    "material",
+                    "colour",
+                    "nozzle_diameter",
+                    "loaded_by",
+                    "loaded_at",
+                ]
+            },
         ),
         (
             "Other",
@@ -151,3 +191,27 @@ class ResponseLineAdmin(admin.ModelAdmin):
 
     def has_change_permission(self, request: HttpRequest, obj: object = None) -> bool:
         return False
+
+
+@admin.register(WorkerHost)
+class WorkerHostAdmin(admin.ModelAdmin):
+    """Hosts are added here or with `manage.py worker_host add NAME` (which shows
+    the key); the heartbeat fields are the host's runhost's to write."""
+
+    list_display = ["name", "hostname", "version", "seen_at", "enabled", "online"]
+    search_fields = ["name", "hostname", "description"]
+    readonly_fields = [
+        "key_prefix",
+        "instance",
+        "hostname",
+        "version",
+        "started_at",
+        "seen_at",
+        "load",
+        "printers",
+        "metrics_address",
+    ]
+
+    @admin.display(boolean=True)
+    def online(self, host: WorkerHost) -> bool:
+        return host.online

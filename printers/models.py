@@ -9,9 +9,12 @@ from django.core.exceptions import ValidationError
 from django.core.validators import MaxValueValidator, MinValueValidator, RegexValidator
 from django.db import models
 
+from printers.hosts import WorkerHost
 from printers.ports import PortRefused, check_configured_port, simulator_paths_outside
 
 _SLUG = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - and _")
+#: Slugs no printer may take: `farm` is the farm queue's in upload URLs.
+RESERVED_SLUGS = frozenset({"farm"})
 
 
 def validate_port(value: str) -> None:
@@ -45,6 +48,41 @@ def validate_motion_profile(value: object) -> None:
         MotionLimits.from_profile(value)
     except BadProfile as error:
         raise ValidationError(str(error), code="motion") from None
+
+
+def validate_build_volume(value: object) -> None:
+    """{} (unknown) or {"min": [x, y, z], "max": [x, y, z]} in mm, min below max."""
+    if value in ({}, None):
+        return
+    if not isinstance(value, dict) or set(value) != {"min", "max"}:
+        raise ValidationError(
+            'the build volume is {"min": [x, y, z], "max": [x, y, z]} in mm, or {}',
+            code="build_volume",
+        )
+    corners = [value["min"], value["max"]]
+    if not all(
+        isinstance(c, list)
+        and len(c) == 3
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in c)
+        for c in corners
+    ):
+        raise ValidationError(
+            "min and max are three numbers each (x, y, z in mm)", code="build_volume"
+        )
+    if not all(lo < hi for lo, hi in zip(*corners, strict=True)):
+        raise ValidationError(
+            "each of min's numbers must be below max's", code="build_volume"
+        )
+
+
+def validate_tags(value: object) -> None:
+    """A list of short words (farm requirements match them)."""
+    if not isinstance(value, list) or not all(
+        isinstance(tag, str) and 0 < len(tag) <= 40 for tag in value
+    ):
+        raise ValidationError(
+            "tags are a list of words of 1 to 40 characters", code="tags"
+        )
 
 
 def validate_script(value: str) -> None:
@@ -195,6 +233,53 @@ class Printer(models.Model):
         help_text="g/cm³ (PLA 1.24, PETG 1.27, ABS 1.04); a file's own value wins",
     )
 
+    # -- the farm: where the printer runs and what a farm job may ask of it --------
+    worker_host = models.ForeignKey(
+        WorkerHost,
+        on_delete=models.PROTECT,
+        null=True,
+        blank=True,
+        related_name="printer_set",
+        help_text="the worker host the printer is plugged into (runhost --worker-host "
+        "NAME runs its worker); empty = the control plane's own runhost",
+    )
+    farm = models.BooleanField(
+        default=True, help_text="the farm queue may give this printer jobs"
+    )
+    profile = models.CharField(
+        max_length=100,
+        blank=True,
+        help_text="printer profile a farm job may ask for (e.g. MK4, Voron 2.4 350)",
+    )
+    tags = models.JSONField(
+        default=list,
+        blank=True,
+        validators=[validate_tags],
+        help_text='words a farm job may ask for, e.g. ["enclosed", "hardened"]',
+    )
+    build_volume = models.JSONField(
+        default=dict,
+        blank=True,
+        validators=[validate_build_volume],
+        help_text='{"min": [x, y, z], "max": [x, y, z]} in mm: a farm job\'s analysed '
+        "bounding box must fit in it; {} = unknown (no farm job fits)",
+    )
+    #: What is loaded, set by operators (UI, API) or by the firmware's reports.
+    material = models.CharField(
+        max_length=32, blank=True, help_text="loaded material (PLA, PETG, ...)"
+    )
+    colour = models.CharField(max_length=32, blank=True, help_text="loaded colour")
+    nozzle_diameter = models.FloatField(
+        null=True,
+        blank=True,
+        validators=[MinValueValidator(0.05), MaxValueValidator(5)],
+        help_text="mm",
+    )
+    loaded_by = models.CharField(
+        max_length=100, blank=True, help_text="who set the loaded material last"
+    )
+    loaded_at = models.DateTimeField(null=True, blank=True)
+
     # Written by the worker only.
     state = models.CharField(
         max_length=16, choices=State.choices, default=State.OFFLINE
@@ -210,12 +295,26 @@ class Printer(models.Model):
     lease_owner = models.CharField(max_length=100, blank=True)
     lease_expires_at = models.DateTimeField(null=True, blank=True)
     worker_seen_at = models.DateTimeField(null=True, blank=True)
+    #: The link's figures, saved with the status about once a second: {"at",
+    #: "connected_at" (ISO), "lines_sent", "lines_acked", "resends", "timeouts",
+    #: "bytes_sent", "bytes_received" (since the connect), "rtt_ms" (mean ack round
+    #: trip), "lines_per_s", "link_use" (0..1: bits sent over what the baud rate
+    #: carries; both over the last few seconds), "cpu_s" (the worker's CPU seconds)}.
+    link_stats = models.JSONField(default=dict, blank=True)
 
     class Meta:
         ordering = ["name"]
 
     def __str__(self) -> str:
         return f"{self.name} ({self.slug})"
+
+    def clean(self) -> None:
+        """`farm` names the farm queue in upload URLs (/printer/job/farm, /p/farm/)."""
+        if self.slug in RESERVED_SLUGS:
+            raise ValidationError(
+                {"slug": f"{self.slug!r} is reserved for the farm queue"},
+                code="reserved",
+            )
 
     @property
     def is_grbl(self) -> bool:

@@ -213,6 +213,18 @@ class Caller:
             f" (you have {Role(self.role(printer)).label.split()[0] if self.role(printer) else 'none'})"
         )
 
+    def require_farm(self, role: int) -> None:
+        """Raise unless the caller may act on the farm at *role*: the role on every
+        printer (a farm job may go to any of them), with no key bound to one."""
+        if not self.authenticated:
+            raise NotAuthenticated("log in or give an API key")
+        if self.key is not None and self.key.printer_id is not None:
+            raise Forbidden(
+                f"this API key is bound to printer {self.key.printer.slug!r}; the "
+                "farm may give a job to any printer: use a key bound to none"
+            )
+        self.require(None, role)
+
     def printers(self, role: int = Role.VIEWER) -> list[Printer]:
         """The printers this caller may see (or act on at *role*)."""
         found = Printer.objects.all()

@@ -151,8 +151,29 @@ def card(printer: Printer, caller: Caller) -> dict[str, Any]:
 def dashboard(request: HttpRequest) -> HttpResponse:
     """Every printer the user may view, as a card."""
     caller = caller_of_page(request)
-    cards = [card(p, caller) for p in caller.printers(Role.VIEWER)]
-    return render(request, "dashboard.html", {"cards": cards})
+    printers = caller.printers(Role.VIEWER)
+    cards = [card(p, caller) for p in printers]
+    return render(
+        request, "dashboard.html", {"cards": cards, "hosts": hosts_of(printers)}
+    )
+
+
+def hosts_of(printers: list[Printer]) -> list[dict[str, object]]:
+    """The worker hosts that drive *printers*, with their last heartbeat."""
+    from printers.hosts import HEARTBEAT_STALE_SECONDS, WorkerHost
+
+    ids = {p.worker_host_id for p in printers if p.worker_host_id}
+    hosts = WorkerHost.objects.filter(pk__in=ids).prefetch_related("printer_set")
+    return [
+        {
+            **host.as_dict(),
+            "stale_after": HEARTBEAT_STALE_SECONDS,
+            "count": len(host.printer_set.all()),
+            "load1": (host.load.get("loadavg") or [None])[0],
+            "cpus": host.load.get("cpus"),
+        }
+        for host in hosts
+    ]
 
 
 @login_required
@@ -261,6 +282,20 @@ def history(request: HttpRequest) -> HttpResponse:
 
     context = history_context(caller_of_page(request), request.GET)
     return render(request, "history.html", context)
+
+
+@login_required
+def farm(request: HttpRequest) -> HttpResponse:
+    """The farm: its queue, and the printers by worker host and by material."""
+    from printhost.access import Forbidden
+    from printhost.farm_page import farm_context
+
+    caller = caller_of_page(request)
+    try:
+        caller.require_farm(Role.VIEWER)
+    except Forbidden as error:
+        return forbidden(request, f"the farm: {error}")
+    return render(request, "farm.html", farm_context(caller))
 
 
 def denied(request: HttpRequest, exception: Exception | None = None) -> HttpResponse:

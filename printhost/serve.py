@@ -49,7 +49,7 @@ from daphne.http_protocol import HTTPFactory, WebRequest
 from daphne.server import Server
 from twisted.web import http
 
-from printhost import startup
+from printhost import logformat, startup
 from printhost.bodygate import GatedChannel, RawBodyRequest
 from printhost.redact import redact_target
 
@@ -141,7 +141,9 @@ class SpoolingServer(Server):
         if refusal:
             sys.exit(f"printhost: {refusal}")
         if kwargs.get("action_logger") is not None:
-            kwargs["action_logger"] = RedactedAccessLog(kwargs["action_logger"])
+            # In JSON log mode the access log goes through logging (logformat).
+            logged = logformat.access_log(kwargs["action_logger"])
+            kwargs["action_logger"] = RedactedAccessLog(logged)
         super().__init__(*args, **kwargs)
 
     def create_application(self, protocol: Any, scope: dict[str, Any]) -> Any:

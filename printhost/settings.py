@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import dj_database_url
+from django.core.exceptions import ImproperlyConfigured
 
 from printhost.env import env_bool, env_float, env_list, env_positive, env_str
+from printhost.logformat import FORMATTERS
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 
@@ -20,6 +22,12 @@ DEBUG = env_bool("PRINTHOST_DEBUG", default=False)
 SECRET_KEY = env_str(
     "PRINTHOST_SECRET_KEY", "printhost-insecure-development-key-change-me"
 )
+if not SECRET_KEY.strip():
+    # An env file with the line left empty: stop now, not at the first login.
+    raise ImproperlyConfigured(
+        "PRINTHOST_SECRET_KEY is empty: set it to 50+ random characters, e.g. "
+        '`python -c "import secrets; print(secrets.token_urlsafe(50))"`'
+    )
 ALLOWED_HOSTS = env_list("PRINTHOST_ALLOWED_HOSTS", ["127.0.0.1", "localhost", "[::1]"])
 CSRF_TRUSTED_ORIGINS = env_list("PRINTHOST_CSRF_TRUSTED_ORIGINS", [])
 
@@ -34,6 +42,9 @@ if HTTPS:
     SECURE_HSTS_SECONDS = int(env_float("PRINTHOST_HSTS_SECONDS", 31536000))
     SECURE_HSTS_INCLUDE_SUBDOMAINS = True
     SECURE_HSTS_PRELOAD = True
+    # A Prometheus on the control plane itself may scrape daphne directly over
+    # loopback HTTP (a redirect to HTTPS would fail it); the proxy redirects the rest.
+    SECURE_REDIRECT_EXEMPT = [r"^metrics$"]
 if env_bool("PRINTHOST_BEHIND_PROXY", default=False):
     SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https")
 X_FRAME_OPTIONS = "DENY"
@@ -54,6 +65,8 @@ INSTALLED_APPS = [
 ]
 
 MIDDLEWARE = [
+    # First: it times everything below it (printhost/metrics_web.py).
+    "printhost.metrics_web.request_latency",
     "printhost.slashes.CollapseSlashesMiddleware",
     "django.middleware.security.SecurityMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
@@ -91,6 +104,12 @@ DATABASES = {
         env_str("DATABASE_URL", _SQLITE_URL), conn_max_age=0
     )
 }
+if DATABASES["default"]["ENGINE"] == "django.db.backends.postgresql":
+    # A database that went away must fail a connection in seconds, not hang a
+    # worker's loop (libpq waits forever by default).
+    DATABASES["default"].setdefault("OPTIONS", {}).setdefault(
+        "connect_timeout", int(env_positive("PRINTHOST_DB_CONNECT_TIMEOUT", 3))
+    )
 if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
     DATABASES["default"]["OPTIONS"] = {
         "timeout": 20,
@@ -104,7 +123,7 @@ REDIS_URL = env_str("REDIS_URL", "")
 if REDIS_URL:
     CHANNEL_LAYERS = {
         "default": {
-            "BACKEND": "channels_redis.core.RedisChannelLayer",
+            "BACKEND": "printhost.channel_layer.ResilientRedisChannelLayer",
             "CONFIG": {
                 "hosts": [REDIS_URL],
                 "prefix": env_str("PRINTHOST_CHANNEL_PREFIX", "printhost"),
@@ -213,6 +232,8 @@ CELERY_BEAT_SCHEDULE = {
 }
 #: Analyses running at once in runhost's Celery worker.
 PRINTHOST_CELERY_CONCURRENCY = max(1, int(env_float("PRINTHOST_CELERY_CONCURRENCY", 1)))
+# A Celery worker started on its own (a systemd unit) runs as many as runhost's.
+CELERY_WORKER_CONCURRENCY = PRINTHOST_CELERY_CONCURRENCY
 #: Thumbnails and other files derived from job files, by SHA-256.
 ANALYSIS_DIR = Path(
     env_str("PRINTHOST_ANALYSIS_DIR", str(DATA_DIR / "analysis"))
@@ -248,12 +269,19 @@ PRINTHOST_POLL_SECONDS = env_float("PRINTHOST_POLL_SECONDS", 0.1)
 #: Address the raw TCP terminals listen on (one port per printer, `terminal_port`).
 PRINTHOST_TERMINAL_BIND = env_str("PRINTHOST_TERMINAL_BIND", "127.0.0.1")
 
+#: `text` (default) or `json`: one JSON object a line (printhost/logformat.py) in
+#: every process that configures logging from here (daphne, runhost, the printer
+#: workers, Celery).
+PRINTHOST_LOG_FORMAT = env_str("PRINTHOST_LOG_FORMAT", "text").strip().lower()
+if PRINTHOST_LOG_FORMAT not in FORMATTERS:
+    raise ImproperlyConfigured(
+        f"PRINTHOST_LOG_FORMAT={PRINTHOST_LOG_FORMAT!r}: use one of "
+        + ", ".join(sorted(FORMATTERS))
+    )
 LOGGING = {
     "version": 1,
     "disable_existing_loggers": False,
-    "formatters": {
-        "plain": {"format": "%(asctime)s %(levelname)s %(name)s: %(message)s"}
-    },
+    "formatters": {"plain": FORMATTERS[PRINTHOST_LOG_FORMAT]},
     "handlers": {"console": {"class": "logging.StreamHandler", "formatter": "plain"}},
     "root": {"handlers": ["console"], "level": env_str("PRINTHOST_LOG_LEVEL", "INFO")},
 }
@@ -300,3 +328,29 @@ PRINTHOST_TERMINAL_MAX_PER_ADDRESS = int(
 )
 #: Seconds a terminal client has to send its key line before it is closed.
 PRINTHOST_TERMINAL_LOGIN_SECONDS = env_float("PRINTHOST_TERMINAL_LOGIN_SECONDS", 30.0)
+
+# -- worker hosts of a print farm (printers/hosts.py, printers/worker/files.py) ----
+#: The control plane's address as a worker host reaches it (job files are fetched
+#: from it); empty on the control plane itself and on a single-computer set-up.
+PRINTHOST_CONTROL_URL = env_str("PRINTHOST_CONTROL_URL", "").rstrip("/")
+#: The worker host a printer's worker runs on (runhost --worker-host sets it for
+#: its workers; empty = the control plane's own runhost).
+PRINTHOST_WORKER_HOST = env_str("PRINTHOST_WORKER_HOST", "")
+#: This worker host's key (`manage.py worker_host add NAME` shows it once).
+PRINTHOST_HOST_KEY = env_str("PRINTHOST_HOST_KEY", "")
+#: Bytes of fetched job files a worker host keeps (least recently used go first).
+PRINTHOST_FILE_CACHE_BYTES = int(
+    env_positive("PRINTHOST_FILE_CACHE_BYTES", 8 * 1024**3, zero=False)
+)
+#: Seconds between a worker host's heartbeats.
+PRINTHOST_HEARTBEAT_SECONDS = env_positive("PRINTHOST_HEARTBEAT_SECONDS", 5.0)
+
+# -- metrics (printhost/metrics*.py, `/metrics`, `manage.py serve_metrics`) --------
+#: A scrape must send `Authorization: Bearer <this>`; empty = only an admin's session
+#: or API key may read /metrics.
+PRINTHOST_METRICS_TOKEN = env_str("PRINTHOST_METRICS_TOKEN", "")
+#: Where each daphne process keeps its request-latency histogram (one file each,
+#: summed by a scrape); one folder per computer.
+PRINTHOST_METRICS_DIR = Path(
+    env_str("PRINTHOST_METRICS_DIR", str(DATA_DIR / "metrics"))
+).resolve()

@@ -65,6 +65,9 @@ class StreamHost:
         self._max_steps = max_steps
         self._events: deque[HostEvent] = deque()
         self._pending: dict[int, Line] = {}
+        #: The line `wait for ack` found room for in this advance(): the protocol
+        #: has not changed since, so `read cursor` need not ask it again.
+        self._cleared: Line | None = None
         self._requested: str = ""
         #: False when the printer paused/resumed itself (//action:paused, resumed).
         self._with_script = True
@@ -207,6 +210,7 @@ class StreamHost:
         """Send emergencies, then step the active stream until it must wait."""
         while self.emergency_queue:
             self.protocol.send_emergency(self.emergency_queue.popleft(), now)
+        self._cleared = None
         for _ in range(self._max_steps):
             stream = self.active_stream
             if stream is None or not self._step(stream, now):
@@ -253,8 +257,7 @@ class StreamHost:
 
     def _step(self, stream: Stream, now: float) -> bool:
         """Advance *stream* by one state; False when it has to wait."""
-        handler = getattr(self, "_on_" + stream.state.name.lower())
-        return handler(stream, now)
+        return _HANDLERS[stream.state](self, stream, now)
 
     def _on_start(self, stream: Stream, now: float) -> bool:
         stream.move(S.READY_TO_READ_CURSOR)
@@ -285,7 +288,8 @@ class StreamHost:
         line = self._pending[stream.id]
         if line.text.startswith("[ESP"):
             stream.move(S.SEND_ESP_COMMAND)
-        elif self.protocol.can_send(line.text):
+        elif line is self._cleared or self.protocol.can_send(line.text):
+            self._cleared = None
             stream.move(S.SEND_GCODE_COMMAND)
         else:
             stream.move(S.WAIT_FOR_ACK)
@@ -330,6 +334,7 @@ class StreamHost:
         line = self._pending.get(stream.id)
         if stream.eof or (line is not None and not self._can_go(line)):
             return False
+        self._cleared = line
         stream.move(S.READY_TO_READ_CURSOR)
         return True
 
@@ -420,3 +425,11 @@ class StreamHost:
                 queue.popleft()
                 break
         self._events.append(StreamEnded(stream))
+
+
+#: Each command state's step (`_on_<state>`), looked up once, not per step.
+_HANDLERS = {
+    state: getattr(StreamHost, f"_on_{state.name.lower()}")
+    for state in CommandState
+    if hasattr(StreamHost, f"_on_{state.name.lower()}")
+}

@@ -84,6 +84,10 @@ class QueueState(enum.Enum):
 class CommandState(enum.Enum):
     """Where the active stream is in handling its current command (ESP3D's names)."""
 
+    # Members are compared by identity: hashing them so too keeps the table
+    # lookups of every step (several a line) off Enum's Python-level __hash__.
+    __hash__ = object.__hash__
+
     UNDEFINED = "undefined"
     START = "start"
     READY_TO_READ_CURSOR = "ready to read cursor"

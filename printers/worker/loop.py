@@ -12,16 +12,17 @@ No threads: the only wait is the read timeout.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from typing import TYPE_CHECKING
 
 from django.conf import settings
-from django.db import close_old_connections
 
 from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
+from printers.protocol.pacing import Pacer
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
 from printers.transport import (
     PortNotAllowed,
@@ -30,14 +31,22 @@ from printers.transport import (
     TransportError,
 )
 from printers.worker import spool
-from printers.worker.journal import Entry, Journal
-from printers.worker.lease import Lease, LeaseLost, make_owner
+from printers.worker.journal import Journal
+from printers.worker.lease import (
+    UNREACHABLE,
+    DatabaseAway,
+    Lease,
+    LeaseLost,
+    make_owner,
+)
+from printers.worker.linkstats import LinkStats
 from printers.worker.prompts import HostPrompts
 from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
 from printers.worker.sdcard import SdCardWatch
 from printers.worker.status import PrinterStatus
+from printhost.longrunning import close_failed_connections
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -77,8 +86,14 @@ class PrinterWorker(Reactions):
         self.transport: SerialTransport | None = None
         self.protocol: LinkProtocol = protocol_for(self.config)
         self.host = StreamHost(self.protocol, scripts=printer.scripts())
+        #: What is still on the wire, so one wake-up takes several replies.
+        self.pacer = Pacer(printer.baud)
+        #: The link's figures, saved with the status (`Printer.link_stats`).
+        self.link = LinkStats(printer.baud)
         self.shutdown = False
         self.waitstart = False
+        #: Database writes held while the database is away, in order (hold_or_run).
+        self.held: list[Callable[[], object]] = []
         self.halted = ""
         self.stay_offline = False
         self.autoreport = False
@@ -116,7 +131,14 @@ class PrinterWorker(Reactions):
         self.start()
         try:
             while not self.shutdown:
-                self.tick()
+                try:
+                    self.tick()
+                except (DatabaseAway, *UNREACHABLE) as error:
+                    # The printer goes on; what is to be written waits (lease.py).
+                    if not self.lease.keep_while_away:
+                        raise
+                    if not isinstance(error, DatabaseAway):
+                        self.lease.unreachable(error)
         except LeaseLost as error:
             self.abandon(str(error))
             raise
@@ -177,15 +199,22 @@ class PrinterWorker(Reactions):
         if self.transport is None:
             self._tick_offline(now)
             return
+        now, wait = self._pace(now, self._wait_time(now))
         self.lease.ensure(now)
         try:
-            data = self.transport.read(self._wait_time(now))
+            data = self.transport.read(wait)
+            now = self.clock()
+            if data and self.pacer.modelled:
+                data, now = self._rest_of_line(data, now)
         except TransportClosed as error:
             self.port_lost(str(error))
             return
-        now = self.clock()
         self.protocol.receive_data(data, now)
         self.handle_protocol_events(now)
+        if data:
+            self.link.received(len(data))
+            if self.pacer.modelled:
+                self.pacer.acknowledged(self.protocol.bytes_in_flight, now)
         deadline = self.protocol.next_deadline()
         if deadline is not None and now >= deadline:
             self.protocol.handle_timeout(now)
@@ -196,14 +225,15 @@ class PrinterWorker(Reactions):
             self._housekeeping(now)
             self.pump(now)
         self.journal_progress()
-        self.log.flush_if_due(now)
+        with contextlib.suppress(DatabaseAway):
+            self.log.flush_if_due(now)
 
     def journal_progress(self) -> None:
         """Append the job's acknowledged line to the journal (every tick that moved it)."""
         stream = self.host.current_stream
         if stream is not None and isinstance(stream.ref, int) and stream.type.is_stream:
-            self.journal.record(
-                Entry(stream.ref, stream.done, stream.reached, stream.bytes_acked)
+            self.journal.progress(
+                stream.ref, stream.done, stream.reached, stream.bytes_acked
             )
 
     def pump(self, now: float) -> None:
@@ -217,26 +247,72 @@ class PrinterWorker(Reactions):
         data = self.protocol.data_to_send()
         if data:
             self.lease.ensure(now)
+            # Timed before the write: writing wakes the reader, which may take
+            # this CPU at once, so a time read after it can be late by a lot.
+            written_at = self.clock()
             try:
                 self.transport.write(data)
             except TransportClosed as error:
                 self.port_lost(str(error))
                 return
+            self.pacer.wrote(len(data), written_at)
+            self.link.wrote(len(data))
         self.handle_protocol_events(now)
 
     def _housekeeping(self, now: float) -> None:
         self.next_poll = now + self.poll_seconds
-        close_old_connections()
-        self.lease.renew_if_due(now)
-        self.lease.check()
-        self.requests.poll(now)
-        self.maybe_claim_job(now)
         self.poll_temperature(now)
-        self.sd.poll(now)
-        if now >= self.next_progress:
-            self.next_progress = now + PROGRESS_SECONDS
-            self.save_progress()
-        self.status.save_if_due(now)
+        try:
+            if not self.lease.away:
+                close_failed_connections()
+            self.lease.renew_if_due(now)
+            if self.lease.recovered:
+                self.write_held(now)
+            self._check_lease(now)
+            self.requests.poll(now)
+            self.maybe_claim_job(now)
+            self.sd.poll(now)
+            if now >= self.next_progress:
+                self.next_progress = now + PROGRESS_SECONDS
+                self.save_progress()
+            stats = self.link.snapshot(now, self.protocol)
+            if stats is not None:
+                self.status.update(link_stats=stats)
+            self.status.save_if_due(now)
+        except (DatabaseAway, *UNREACHABLE) as error:
+            if not self.lease.keep_while_away:
+                raise
+            if not isinstance(error, DatabaseAway):
+                self.lease.unreachable(error)
+
+    def _check_lease(self, now: float) -> None:
+        """Lease.check(), unless the log stored a batch within the poll interval:
+        that write ran in `Lease.held()`, which checked the same row (owner and
+        expiry) more strictly, so the lease is as fresh as a check would make it.
+        While printing, the log stores four times a second: a read spared each
+        time."""
+        if now - self.log.stored_at >= self.poll_seconds:
+            self.lease.check()
+
+    def write_held(self, now: float) -> None:
+        """The database is back: write what waited, in order, before anything new.
+
+        Held stream events first (a run's outcome, which also decides the bed
+        must be cleared before the next job), then a run the control plane took
+        for dead is shown running again, then the log, progress and status.
+        """
+        self.write_held_actions()
+        stream = self.host.current_stream
+        if stream is not None and stream.ref is not None and stream.type.is_stream:
+            with self.lease.held():
+                if spool.reassert(
+                    stream, paused=self.host.queue_state.value == "paused"
+                ):
+                    self.note(f"job {stream.ref} went on while the database was away")
+        self.lease.recovered = False
+        self.log.flush()
+        self.save_progress()
+        self.status.save_if_due(now, force=True)
 
     def _tick_offline(self, now: float) -> None:
         if not self.stay_offline and now >= self.next_connect:
@@ -245,7 +321,7 @@ class PrinterWorker(Reactions):
                 return
         if now >= self.next_poll:
             self.next_poll = now + self.poll_seconds
-            close_old_connections()
+            close_failed_connections()
             self.lease.renew_if_due(now)
             self.lease.check()
             self.requests.poll(now)
@@ -255,6 +331,33 @@ class PrinterWorker(Reactions):
         if not self.stay_offline:
             wake = min(wake, self.next_connect)
         time.sleep(max(0.0, min(wake - now, self.poll_seconds)))
+
+    def _pace(self, now: float, wait: float) -> tuple[float, float]:
+        """Wait while the wire is still busy with what was written (P2 in
+        printers/protocol/pacing.py), so one wake-up takes every reply that came
+        meanwhile; never past *wait*, the loop's next deadline. Returns the time
+        after and what is left of *wait*."""
+        until = self.pacer.read_at(now, self.protocol.in_flight)
+        if until <= now:
+            return now, wait
+        time.sleep(min(until - now, wait))
+        later = self.clock()
+        return later, max(0.0, wait - (later - now))
+
+    def _rest_of_line(self, data: bytes, now: float) -> tuple[bytes, float]:
+        """A read that cut a reply line: wait for its rest in this same turn (P4 in
+        printers/protocol/pacing.py) rather than take a whole turn for each part."""
+        self.pacer.received(data, now)
+        until = self.pacer.rest_at(now)
+        if until is None:
+            return data, now
+        if until > now:
+            time.sleep(min(until - now, self._wait_time(now)))
+        more = self.transport.read(0.0)
+        now = self.clock()
+        if more:
+            self.pacer.received(more, now)
+        return data + more, now
 
     def _wait_time(self, now: float) -> float:
         wake = min(self.next_poll, self.log.due(now))
@@ -283,6 +386,8 @@ class PrinterWorker(Reactions):
             self._retry_later(now, str(error))
             return
         self.backoff = BACKOFF_FIRST
+        self.pacer.reset()
+        self.link.connected(now)
         self.protocol = protocol_for(self.config)
         self.host = StreamHost(self.protocol, scripts=self.printer.scripts())
         self.halted = ""

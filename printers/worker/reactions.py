@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from functools import partial
 from typing import TYPE_CHECKING
 
 from jobs.models import Job
@@ -12,8 +13,11 @@ from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unloc
 from printers.streaming import Stream, StreamType, lines_from_text
 from printers.streaming import host as hv
 from printers.worker import spool
+from printers.worker.lease import UNREACHABLE, DatabaseAway
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from printers.worker.loop import PrinterWorker
 
 logger = logging.getLogger("printhost.worker")
@@ -224,38 +228,77 @@ class Reactions:
 
     def handle_host_events(self: PrinterWorker, now: float) -> None:
         while (event := self.host.next_event()) is not None:
-            match event:
-                case hv.StreamStarted(stream=stream) if _is_job(stream):
-                    dry = " as a dry run (GRBL check mode)" if self._dry_run() else ""
-                    self.note(f"job {stream.ref} ({stream.name}) started{dry}")
-                case hv.StreamPaused(stream=stream) if _is_job(stream):
-                    with self.lease.held():
-                        spool.save_progress(stream, state=Job.State.PAUSED)
-                    self.note(f"job {stream.ref} paused")
-                case hv.StreamResumed(stream=stream) if _is_job(stream):
-                    with self.lease.held():
-                        spool.save_progress(stream, state=Job.State.PRINTING)
-                    self.note(f"job {stream.ref} resumed")
-                case hv.StreamEnded(stream=stream):
-                    self._on_stream_end(stream)
-                case hv.EspCommand(stream=stream, text=text):
-                    self.requests.answer_esp(stream, text)
-                case hv.CommandAnswered(stream=stream, line=line, ok=ok, message=m):
-                    self.requests.answered(stream, ok=ok, message=m)
-                    if ok and self.grbl_alarm and _homes(line.text):
-                        self._clear_alarm()  # homing found the machine's position
+            self._on_host_event(event)
         self.update_state()
+
+    def hold_or_run(self: PrinterWorker, action: Callable[[], object]) -> None:
+        """Run a database write now, or hold it (in order) while the database is away.
+
+        What the printer must do (scripts, waitstart) never waits for it: callers
+        do that first and hand only the write here.
+        """
+        if not self.held and not self.lease.away:
+            try:
+                action()
+                return
+            except DatabaseAway:
+                if not self.lease.keep_while_away:
+                    raise
+            except UNREACHABLE as error:
+                away = self.lease.unreachable(error)
+                if not self.lease.keep_while_away:
+                    raise away from None
+        elif not self.lease.keep_while_away:
+            raise DatabaseAway(f"printer {self.printer.pk}: the database is away")
+        self.held.append(action)
+
+    def write_held_actions(self: PrinterWorker) -> None:
+        """The writes held while the database was away, in order (DatabaseAway if
+        it went away again: the rest stay held)."""
+        while self.held:
+            try:
+                self.held[0]()
+            except UNREACHABLE as error:
+                raise self.lease.unreachable(error) from None
+            self.held.pop(0)
+
+    def _on_host_event(self: PrinterWorker, event: hv.HostEvent) -> None:
+        match event:
+            case hv.StreamStarted(stream=stream) if _is_job(stream):
+                dry = " as a dry run (GRBL check mode)" if self._dry_run() else ""
+                self.note(f"job {stream.ref} ({stream.name}) started{dry}")
+            case hv.StreamPaused(stream=stream) if _is_job(stream):
+                self.hold_or_run(partial(self._save_state, stream, Job.State.PAUSED))
+                self.note(f"job {stream.ref} paused")
+            case hv.StreamResumed(stream=stream) if _is_job(stream):
+                self.hold_or_run(partial(self._save_state, stream, Job.State.PRINTING))
+                self.note(f"job {stream.ref} resumed")
+            case hv.StreamEnded(stream=stream):
+                self._on_stream_end(stream)
+            case hv.EspCommand(stream=stream, text=text):
+                self.hold_or_run(partial(self.requests.answer_esp, stream, text))
+            case hv.CommandAnswered(stream=stream, line=line, ok=ok, message=m):
+                self.hold_or_run(
+                    partial(self.requests.answered, stream, ok=ok, message=m)
+                )
+                if ok and self.grbl_alarm and _homes(line.text):
+                    self._clear_alarm()  # homing found the machine's position
+
+    def _save_state(self: PrinterWorker, stream: Stream, state: str) -> None:
+        with self.lease.held():
+            spool.save_progress(stream, state=state)
 
     def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
         if not _is_job(stream):
-            self.requests.ended(stream)
+            self.hold_or_run(partial(self.requests.ended, stream))
             return
         if stream.outcome == "completed" and self._dry_run() and not stream.message:
             stream.message = (
                 "dry run in GRBL check mode: every line checked, nothing moved"
             )
-        with self.lease.held():
-            state = spool.finish(stream)
+        # The printer's side first (the bed, the end script), the row after: a
+        # database away must not keep the heaters on or let the next job start.
+        state = spool.final_state(stream)
         upload = stream.printer_side is not None and stream.printer_side.exclusive
         if not upload:  # a copy to the SD card printed nothing: no bed to clear
             self.waitstart = not self.printer.auto_start
@@ -266,6 +309,11 @@ class Reactions:
             self.stop_motion_after_error()
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
+        self.hold_or_run(partial(self._finish, stream, state))
+
+    def _finish(self: PrinterWorker, stream: Stream, state: Job.State) -> None:
+        with self.lease.held():
+            spool.finish(stream)
         self.sd.job_ended(stream, state)
 
     # -- jobs and periodic commands ---------------------------------------------
@@ -275,6 +323,8 @@ class Reactions:
         if self.transport is None or self.halted or self.waitstart:
             return
         if self.host.current_stream is not None or self.host.script_queue:
+            return
+        if not self.requests.jobs_waiting():
             return
         with self.lease.held():
             job = spool.claim_next(self.printer.pk)

@@ -6,6 +6,7 @@ by the upkeep (`printers/upkeep.py`, from Celery beat), never in the worker's lo
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING
 
 from django.db import connections, transaction
@@ -16,6 +17,7 @@ from printers import broadcast
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from contextlib import AbstractContextManager
     from datetime import datetime
 
@@ -24,6 +26,12 @@ if TYPE_CHECKING:
 #: Flush at least this often (s) and whenever this many lines wait.
 FLUSH_SECONDS = 0.25
 FLUSH_LINES = 1000
+#: Lines held in memory while the database is away (about 50 MB at most).
+HELD_LINES = 200_000
+#: Lines logged within this long of each other share one timestamp (s): a line and
+#: its ok come within a millisecond, and each distinct time costs a datetime and
+#: its conversion for the database.
+STAMP_SECONDS = 0.001
 
 
 class ResponseLog:
@@ -43,12 +51,41 @@ class ResponseLog:
         self.last_id: int = last or 0
         self._buffer: list[tuple[int, datetime, str, int]] = []
         self._flush_at = 0.0
+        self._stamp_wall = 0.0
+        self._stamp_at = timezone.now()
+        #: The loop's time of the last batch stored by flush_if_due: its transaction
+        #: checked the lease (the loop skips its own check right after one).
+        self.stored_at = float("-inf")
 
     def add(self, text: str, kind: int) -> int:
-        """Log one line; returns its id."""
+        """Log one line; returns its id.
+
+        At most HELD_LINES wait for the database; beyond that (a long outage) the
+        oldest waiting lines make room, and a note in their place says how many.
+        """
         self.last_id += 1
-        self._buffer.append((self.last_id, timezone.now(), text, int(kind)))
+        self._buffer.append((self.last_id, self._stamp(), text, int(kind)))
+        if len(self._buffer) > HELD_LINES:
+            self._drop_oldest()
         return self.last_id
+
+    def _stamp(self) -> datetime:
+        """Now, as the time of a line (one datetime for lines within STAMP_SECONDS)."""
+        wall = time.time()
+        if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
+            self._stamp_wall, self._stamp_at = wall, timezone.now()
+        return self._stamp_at
+
+    def _drop_oldest(self) -> None:
+        dropped = len(self._buffer) - HELD_LINES // 2
+        first, when, _, _ = self._buffer[0]
+        del self._buffer[:dropped]
+        note = (
+            f"[printhost] {dropped} response lines (ids {first} to "
+            f"{first + dropped - 1}) were dropped: the database was away too long"
+        )
+        # The note takes the first dropped id, so ids still only grow.
+        self._buffer.insert(0, (first, when, note, 8))
 
     def due(self, now: float) -> float:
         """When the next flush must happen (monotonic seconds)."""
@@ -57,6 +94,7 @@ class ResponseLog:
     def flush_if_due(self, now: float) -> None:
         if len(self._buffer) >= FLUSH_LINES or (self._buffer and now >= self._flush_at):
             self.flush()
+            self.stored_at = now
         if not self._buffer:
             self._flush_at = now + FLUSH_SECONDS
 
@@ -70,16 +108,17 @@ class ResponseLog:
             return
         table = ResponseLine._meta.db_table
         connection = connections[ResponseLine.objects.db]
-        adapt = connection.ops.adapt_datetimefield_value
         batch = list(self._buffer)
-        rows = [(self.printer_id, seq, adapt(t), x, k) for seq, t, x, k in batch]
-        self._buffer.clear()
+        rows = _rows(self.printer_id, batch, connection.ops.adapt_datetimefield_value)
         sql = (
             f"INSERT INTO {connection.ops.quote_name(table)} "
             "(printer_id, seq, time, text, kind) VALUES (%s, %s, %s, %s, %s)"
         )
+        # The buffer is emptied only once the rows are in: while the database is
+        # away (the lease raises DatabaseAway) they wait here, in order.
         with self._held(), connection.cursor() as cursor:
             cursor.executemany(sql, rows)
+        del self._buffer[: len(batch)]
         # Published after the commit: a client can always read a gap from the table.
         broadcast.publisher().lines(self.printer_id, batch)
 
@@ -91,3 +130,19 @@ class ResponseLog:
         if self.lease is None:
             return transaction.atomic()
         return self.lease.held()
+
+
+def _rows(
+    printer_id: int,
+    batch: list[tuple[int, datetime, str, int]],
+    adapt: Callable[[datetime], object],
+) -> list[tuple[int, int, object, str, int]]:
+    """The batch as database rows; each distinct time adapted once (lines share one)."""
+    rows = []
+    last: datetime | None = None
+    adapted: object = None
+    for seq, when, text, kind in batch:
+        if when is not last:
+            last, adapted = when, adapt(when)
+        rows.append((printer_id, seq, adapted, text, kind))
+    return rows

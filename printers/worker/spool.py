@@ -8,10 +8,11 @@ from typing import TYPE_CHECKING
 from django.db.models import F
 from django.utils import timezone
 
-from jobs import history
+from jobs import history, hostcache
 from jobs.gcode import Command, command_of, read_entries
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
+from printers.reaper import LAST_SAVED
 from printers.streaming import Line, Stream, StreamType
 from printers.streaming.objects import ObjectFilter, ObjectMark, object_mark
 
@@ -34,10 +35,12 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
 
     The journal's entry (written on every ack batch) wins over the database's
     progress (saved once a second). They are never restarted by themselves: a
-    half-printed part is on the bed.
+    half-printed part is on the bed. A job the control plane already marked
+    interrupted when this host fell silent (`printers.reaper`) gets its exact
+    line from the journal here.
     """
     jobs = list(Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES))
-    for job in jobs:
+    for job in [*jobs, *_reaped(printer_id)]:
         progress: dict[str, int] = {}
         if journaled is not None and journaled.job_id == job.pk:
             job.lines_acked = journaled.acked
@@ -47,15 +50,29 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
                 "bytes_acked": journaled.bytes_acked,
             }
         job.message = _interrupted(job)
-        Job.objects.filter(pk=job.pk, state__in=ACTIVE_STATES).update(
+        Job.objects.filter(pk=job.pk, state__in=[*ACTIVE_STATES, job.state]).update(
             state=Job.State.INTERRUPTED,
             message=job.message,
-            finished_at=timezone.now(),
+            finished_at=job.finished_at or timezone.now(),
             **progress,
         )
         history.record_run(job.pk)
         broadcast.publisher().job(job.pk)
+        if job not in jobs:
+            jobs.append(job)
     return jobs
+
+
+def _reaped(printer_id: int) -> list[Job]:
+    """Runs the control plane marked interrupted when this printer's worker fell
+    silent (`printers.reaper`), not yet seen by a worker of this printer."""
+    return list(
+        Job.objects.filter(
+            printer_id=printer_id,
+            state=Job.State.INTERRUPTED,
+            message__contains=LAST_SAVED,
+        )
+    )
 
 
 def _interrupted(job: Job) -> str:
@@ -77,8 +94,14 @@ def _interrupted(job: Job) -> str:
 
 
 def claim_next(printer_id: int) -> Job | None:
-    """Take the first queued job of the printer (healthchecks' conditional UPDATE)."""
+    """Take the first queued job of the printer (healthchecks' conditional UPDATE).
+
+    On a worker host the first job waits (None) until its file has arrived from
+    the control plane and its SHA-256 checks out (`jobs.hostcache`).
+    """
     for job in Job.objects.filter(printer_id=printer_id, state=Job.State.QUEUED)[:5]:
+        if not _file_here(job):
+            return None
         won = Job.objects.filter(pk=job.pk, state=Job.State.QUEUED).update(
             state=Job.State.PRINTING, started_at=timezone.now(), message=""
         )
@@ -87,6 +110,12 @@ def claim_next(printer_id: int) -> Job | None:
             broadcast.publisher().job(job.pk)
             return job
     return None
+
+
+def _file_here(job: Job) -> bool:
+    if job.kind == Job.Kind.SD_PRINT or not hostcache.on_worker_host():
+        return True
+    return hostcache.verified(job.sha256) is not None
 
 
 def stream_for(job: Job) -> Stream:
@@ -154,9 +183,30 @@ def save_progress(stream: Stream, *, state: str | None = None) -> None:
     broadcast.publisher().job(stream.ref)
 
 
+def final_state(stream: Stream) -> Job.State:
+    """The job state an ended stream's outcome gives."""
+    return _OUTCOME_STATE.get(stream.outcome, Job.State.FAILED)
+
+
+def reassert(stream: Stream, *, paused: bool) -> bool:
+    """A run the control plane marked interrupted while this worker could not reach
+    the database (`printers.reaper`) is running: say so again. True if it was."""
+    back = Job.objects.filter(
+        pk=stream.ref, state=Job.State.INTERRUPTED, message__contains=LAST_SAVED
+    ).update(
+        state=Job.State.PAUSED if paused else Job.State.PRINTING,
+        message="",
+        finished_at=None,
+    )
+    if back:
+        history.forget_run(stream.ref)
+        broadcast.publisher().job(stream.ref)
+    return back == 1
+
+
 def finish(stream: Stream) -> Job.State:
     """Record the stream's outcome on its job; returns the job's final state."""
-    state = _OUTCOME_STATE.get(stream.outcome, Job.State.FAILED)
+    state = final_state(stream)
     Job.objects.filter(pk=stream.ref).update(
         state=state,
         message=stream.message,

@@ -60,5 +60,6 @@ ROUTER_MODULES: list[str] = [
     "history",
     "print_history",
     "objects",
+    "farm",
 ]
 _register()

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 
     from printhost.access import Caller
 
+#: The farm pseudo-printer (`printhost.api.farm.FARM_SLUG`): uploads only.
+FARM_SLUG = "farm"
 #: The prefix that names a printer in front of any dialect path.
 PRINTER_PREFIX = "/p/{slug}"
 
@@ -90,6 +92,12 @@ def choose_printer(request: HttpRequest, slug: str | None, role: int) -> Printer
     printer (or their only one). A bound key used with another slug is refused (403).
     """
     caller = caller_of(request)
+    if slug == FARM_SLUG:
+        raise HttpError(
+            404,
+            "/p/farm/ is the farm queue, not a printer: it takes uploads only "
+            "(see /printer/farm for the queue)",
+        )
     if slug:
         printer = Printer.objects.filter(slug=slug).first()
         if printer is None:

@@ -15,6 +15,7 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
+from jobs.farm.storing import remove_file
 from jobs.gcode import BadGcode
 from jobs.models import Job, running_job
 from jobs.services import ChecksumMismatch, FileRemoved
@@ -31,6 +32,7 @@ from printhost.api.dialects import (
     truthy,
     upload_from_form,
 )
+from printhost.api.farm import is_farm, store_farm_request
 from printhost.clients import run_action
 from printhost.models import Role
 
@@ -81,7 +83,7 @@ def moonraker_server_info(
     """The connection test: PrusaSlicer needs `result.moonraker_version`."""
     caller_of(request)
     printer = None
-    if slug:
+    if slug and not is_farm(slug):
         printer = choose_printer(request, slug, Role.VIEWER)
     ready = printer is None or printer.state not in (
         Printer.State.OFFLINE,
@@ -108,11 +110,16 @@ def moonraker_server_info(
 @dialect_route(router, "POST", "/server/files/upload")
 @moonraker_errors
 def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpResponse:
-    """Multipart `file`, `root`, `path`, `print`, `checksum` (SHA-256; 422 on mismatch)."""
-    printer = choose_printer(request, slug, Role.OPERATOR)
+    """Multipart `file`, `root`, `path`, `print`, `checksum` (SHA-256; 422 on mismatch).
+
+    On `/p/farm/` the file goes to the farm queue (requirements as form fields or
+    query parameters): `print_queued` is true."""
     root = request.POST.get("root", "gcodes") or "gcodes"
     if root != "gcodes":
         raise HttpError(400, f"root {root!r} is not supported; use gcodes")
+    if is_farm(slug):
+        return _farm_upload(request)
+    printer = choose_printer(request, slug, Role.OPERATOR)
     to_print = truthy(request.POST.get("print"))
     checksum = request.POST.get("checksum", "").strip()
     busy = (
@@ -141,6 +148,38 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
     response["Location"] = request.build_absolute_uri(
         f"{prefix}/server/files/gcodes/{name}"
     )
+    return response
+
+
+def _farm_upload(request: HttpRequest) -> HttpResponse:
+    upload = request.FILES.get("file")
+    if upload is None:
+        raise HttpError(400, "no file part: send the G-code as multipart field 'file'")
+    checksum = request.POST.get("checksum", "").strip().lower()
+    farm_job = store_farm_request(request, upload)
+    if checksum and checksum != farm_job.sha256:
+        remove_file(farm_job)
+        farm_job.delete()
+        raise ChecksumMismatch(
+            f"{farm_job.name}: SHA-256 {farm_job.sha256} does not match the given "
+            f"{checksum}"
+        )
+    response = JsonResponse(
+        {
+            "item": {
+                "path": farm_job.name,
+                "root": "gcodes",
+                "modified": farm_job.created_at.timestamp(),
+                "size": farm_job.size_bytes,
+                "permissions": "r",
+            },
+            "print_started": False,
+            "print_queued": True,
+            "action": "create_file",
+        },
+        status=201,
+    )
+    response["Location"] = request.build_absolute_uri(f"/printer/farm/{farm_job.pk}")
     return response
 
 

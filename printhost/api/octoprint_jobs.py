@@ -29,6 +29,7 @@ from printhost.api.dialects import (
     truthy,
     upload_from_form,
 )
+from printhost.api.farm import is_farm, store_farm_request
 from printhost.api.octoprint import no_content, state_and_flags
 from printhost.audit import record
 from printhost.clients import run_action
@@ -175,7 +176,13 @@ def upload_answer(
 
 @dialect_route(router, "POST", "/api/files/local")
 def octoprint_upload(request: HttpRequest, slug: str | None = None) -> JsonResponse:
-    """Upload (multipart `file`, `path`, `select`, `print`); print = join the queue."""
+    """Upload (multipart `file`, `path`, `select`, `print`); print = join the queue.
+
+    On `/p/farm/` the file goes to the farm queue (whatever `print` says: the farm
+    keeps no files of its own), with requirements as form fields or query
+    parameters."""
+    if is_farm(slug):
+        return _farm_upload(request)
     printer = choose_printer(request, slug, Role.OPERATOR)
     if "foldername" in request.POST and "file" not in request.FILES:
         raise HttpError(400, "folders are not supported; upload a file")
@@ -184,6 +191,27 @@ def octoprint_upload(request: HttpRequest, slug: str | None = None) -> JsonRespo
     job = upload_from_form(request, printer, queue=to_print)
     info = _file_info(request, job, dialect_prefix(slug))
     return upload_answer("local", info, done=True, select=select, to_print=to_print)
+
+
+def _farm_upload(request: HttpRequest) -> JsonResponse:
+    upload = request.FILES.get("file")
+    if upload is None:
+        raise HttpError(400, "no file part: send the G-code as multipart field 'file'")
+    farm_job = store_farm_request(request, upload)
+    resource = request.build_absolute_uri(f"/printer/farm/{farm_job.pk}")
+    info = {
+        "name": farm_job.name,
+        "display": farm_job.name,
+        "path": farm_job.name,
+        "type": "machinecode",
+        "typePath": ["machinecode", "gcode"],
+        "origin": "local",
+        "size": farm_job.size_bytes,
+        "date": int(farm_job.created_at.timestamp()),
+        "hash": farm_job.sha256,
+        "refs": {"resource": resource, "download": resource},
+    }
+    return upload_answer("local", info, done=True, select=False, to_print=True)
 
 
 @dialect_route(router, "GET", "/api/files/local/{path:filename}")

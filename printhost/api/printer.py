@@ -39,6 +39,7 @@ from jobs.gcode import BadGcode
 from jobs.models import ACTIVE_STATES, Job, running_job
 from printers.models import Printer, ResponseLine
 from printhost import audit
+from printhost.api import farm
 from printhost.api.common import (
     caller_of,
     envelope,
@@ -199,6 +200,8 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         raise HttpError(
             400, f"a must be one of {', '.join(JOB_ACTIONS)}, not {action!r}"
         )
+    if farm.is_farm(slug):
+        return _farm_job_call(request, action, params)
     if action == "list":
         printer = printer_for(request, slug, Role.VIEWER)
         jobs = (
@@ -227,6 +230,27 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         return chunked_upload(request, printer, action, params)
     printer = printer_for(request, slug, Role.OPERATOR)
     return _job_control(request, printer, action, params)
+
+
+def _farm_job_call(
+    request: HttpRequest, action: str, params: dict[str, str]
+) -> HttpResponse:
+    """`/printer/job/farm`: `a=upload` queues the file for the farm (requirements
+    as form fields or query parameters); `a=list` is the farm queue."""
+    if action == "list":
+        farm.farm_caller(request, Role.VIEWER)
+        return envelope(farm.queue_entries())
+    if action != "upload":
+        raise HttpError(
+            400,
+            f"the farm takes a=upload (the whole file, multipart) and a=list, not "
+            f"a={action}: act on a farm job with /printer/farm/<id>",
+        )
+    refuse_acting_get(request, "job a=upload")
+    stored = farm.store_farm_request(
+        request, uploaded_file(request), name=params.get("name", "")
+    )
+    return envelope(stored.as_dict())
 
 
 def _job_control(

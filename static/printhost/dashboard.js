@@ -77,3 +77,19 @@ document.addEventListener("click", async (event) => {
   button.disabled = false;
   if (done && test === "bed-clear") button.hidden = true;
 });
+
+// Worker hosts: the heartbeat's age counts up here; past the stale limit the host
+// shows offline (a dead host writes no more heartbeats).
+function tickHosts() {
+  for (const host of document.querySelectorAll("[data-test=host]")) {
+    if (!host.dataset.seen) continue;
+    const age = Math.max(0, (Date.now() - Date.parse(host.dataset.seen)) / 1000);
+    host.querySelector("[data-test=host-age]").textContent = `heartbeat ${Math.round(age)} s ago`;
+    const online = age < Number(host.dataset.stale);
+    const badge = host.querySelector("[data-test=host-state]");
+    badge.dataset.state = online ? "idle" : "offline";
+    badge.textContent = online ? "online" : "offline";
+  }
+}
+tickHosts();
+setInterval(tickHosts, 1000);

@@ -390,6 +390,17 @@ $("connection-form")?.addEventListener("submit", async (event) => {
   await api("PATCH", `/printer/config/${base}`, { port, baud });
 });
 
+$("loaded-form")?.addEventListener("submit", async (event) => {
+  event.preventDefault();
+  clearError();
+  const loaded = await api("POST", `/printer/loaded/${base}`, Object.fromEntries(new FormData(event.target)));
+  if (!loaded) return;
+  const words = [loaded.colour, loaded.material].filter(Boolean).join(" ");
+  $("loaded-material").textContent = words || "nothing set";
+  $("loaded-nozzle").textContent = loaded.nozzle_diameter ? `${loaded.nozzle_diameter} mm` : "—";
+  $("loaded-by").textContent = `Set by ${loaded.loaded_by} just now`;
+});
+
 // -- chart and live feed -------------------------------------------------------------
 
 const chart = new TempChart($("temp-chart"), 30);

@@ -14,6 +14,7 @@ a savepoint that is rolled back, so every caller finds the same world.
 from __future__ import annotations
 
 import base64
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +26,8 @@ from django.utils import timezone
 
 from jobs import analysing, history, uploads
 from jobs.analysis.thumbnails import png_encode
+from jobs.farm.requirements import Requirements
+from jobs.farm.storing import store_farm_upload
 from jobs.models import Job
 from jobs.resume.planning import make_plan, request_plan
 from jobs.services import enqueue_job
@@ -41,10 +44,11 @@ SAFE = ("GET", "HEAD", "OPTIONS")
 class Endpoint:
     method: str
     path: str  # {stored} {done} {file} {upload} {own_key} {app_token} {user_token}
-    # {entry} {running}
+    # {entry} {running} {farm}
     role: int
     #: "p": acts on printer p (a key bound to q is refused); "any": a role anywhere
-    #: will do; "unbound": a role anywhere, but a key bound to a printer is refused.
+    #: will do; "unbound": a role anywhere, but a key bound to a printer is refused;
+    #: "every": a role on every printer, and a key bound to a printer is refused.
     scope: str = "p"
     #: "json:{...}", "jsonf:{{...{stored}}}" (formatted like the path), "file"
     #: (multipart G-code), "raw".
@@ -186,6 +190,19 @@ ENDPOINTS = [
     ep("PATCH", "/printer/config/p", ADMIN, body='json:{"auto_start": true}'),
     ep("GET", "/api/users", ADMIN, scope="any"),
     ep("POST", "/api/users/viewer/role", ADMIN, scope="any", body='json:{"role": "viewer"}'),
+    # The farm: a job may go to any printer, so a role on every printer, and no
+    # key bound to one; what a printer has loaded is its operator's.
+    ep("GET", "/printer/farm", VIEWER, scope="every"),
+    ep("GET", "/printer/farm/{farm}", VIEWER, scope="every"),
+    ep("PATCH", "/printer/farm/{farm}", OPERATOR, scope="every", body='json:{"priority": 3}'),
+    ep("POST", "/printer/farm/{farm}/cancel", OPERATOR, scope="every"),
+    ep("GET", "/printer/job/farm?a=list", VIEWER, scope="every"),
+    ep("POST", "/printer/job/farm?a=upload&material=PLA", OPERATOR, scope="every", body="file"),
+    ep("POST", "/p/farm/api/files/local", OPERATOR, scope="every", body="file"),
+    ep("POST", "/p/farm/server/files/upload", OPERATOR, scope="every", body="file"),
+    ep("POST", "/printer/loaded/p", OPERATOR, body='json:{"material": "PETG"}'),
+    # Prometheus' scrape (no PRINTHOST_METRICS_TOKEN here): admins of every printer.
+    ep("GET", "/metrics", ADMIN, scope="any"),
 ]  # fmt: skip
 
 KEY_CALLERS = [
@@ -221,11 +238,14 @@ def expected(caller: str, endpoint: Endpoint) -> str:
         return "403"
     if endpoint.people_only and not session:
         return "403"
-    if caller == "bound to q" and endpoint.scope in ("p", "unbound"):
+    if caller == "bound to q" and endpoint.scope in ("p", "unbound", "every"):
         return "403"
     on_p, anywhere = HELD[caller]
     held = on_p if endpoint.scope == "p" else anywhere
-    if endpoint.role == ADMIN and endpoint.scope == "any":
+    every = (endpoint.role == ADMIN and endpoint.scope == "any") or (
+        endpoint.scope == "every"
+    )
+    if every:
         held = ADMIN if caller in ("admin", "superuser") else None  # every printer
     return "allowed" if held is not None and held >= endpoint.role else "403"
 
@@ -305,6 +325,9 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         Printer.objects.filter(pk=p.pk).update(state=state)
     user = world.users.get(caller) or world.users["operator"]
     upload = uploads.open_upload(p, "part.gcode", user=user)
+    farm_job = store_farm_upload(
+        io.BytesIO(b"G28\nG1 X1\n"), name="farm.gcode", requirements=Requirements()
+    )
     request = open_request("Cura", origin=f"192.0.2.{len(caller)}")
     return {
         "stored": stored.pk,
@@ -318,6 +341,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
         "user_token": request.user_token,
         "entry": entry.uid if entry else "",
         "running": running.pk if running else "",
+        "farm": farm_job.pk,
     }
 
 

@@ -164,3 +164,44 @@ def test_account_page_lists_own_keys_only(client: Client, shop: Any) -> None:
 def test_unknown_printer_is_404(client: Client, shop: Any) -> None:
     client.force_login(user_with(Role.OPERATOR))
     assert client.get("/printers/nope/").status_code == 404
+
+
+def test_dashboard_shows_the_heartbeat_of_the_hosts_its_printers_run_on(
+    client: Client, shop: Any
+) -> None:
+    from datetime import timedelta
+
+    from django.utils import timezone
+
+    from printers.hosts import WorkerHost
+
+    shelf = WorkerHost.objects.create(
+        name="shelf-1", version="0.1.0", seen_at=timezone.now(),
+        load={"loadavg": [0.42, 0.3, 0.2], "cpus": 4},
+    )  # fmt: skip
+    WorkerHost.objects.create(
+        name="shelf-2", seen_at=timezone.now() - timedelta(minutes=2)
+    )
+    WorkerHost.objects.create(name="elsewhere", seen_at=timezone.now())
+    shop["first"].worker_host = shelf
+    shop["first"].save()
+    shop["second"].worker_host = WorkerHost.objects.get(name="shelf-2")
+    shop["second"].save()
+    client.force_login(user_with(Role.VIEWER, shop["first"]))
+    body = client.get("/").content.decode()
+    hosts = body.split('data-test="hosts"')[1].split("</section>")[0]
+    one = hosts.split('data-host="shelf-1"')[1].split("</li>")[0]
+    assert ">online<" in one and "1 printer · printhost 0.1.0" in one
+    assert "load 0.42 on 4 CPUs" in one
+    assert "shelf-2" not in hosts and "elsewhere" not in hosts  # not theirs to see
+    client.force_login(user_with(Role.VIEWER, shop["second"], name="v2"))
+    body = client.get("/").content.decode()
+    two = body.split('data-host="shelf-2"')[1].split("</li>")[0]
+    assert ">offline<" in two and "heartbeat 120 s ago" in two
+
+
+def test_dashboard_without_worker_hosts_shows_no_host_panel(
+    client: Client, shop: Any
+) -> None:
+    client.force_login(user_with(Role.OPERATOR))
+    assert 'data-test="hosts"' not in client.get("/").content.decode()

@@ -1,4 +1,9 @@
-"""`manage.py runhost`: daphne plus one worker (and simulator) per enabled printer."""
+"""`manage.py runhost`: daphne plus one worker (and simulator) per enabled printer.
+
+A print farm splits it: the control plane (`--no-workers`: daphne, Celery) and one
+worker host per computer the printers are plugged into (`--no-web --worker-host
+NAME`: that host's printers' workers, simulators and file fetcher).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 from django.conf import settings
 from django.core.management.base import BaseCommand, CommandError
 
+from printers.heartbeat import HostRefused, HostRegistration
 from printers.supervisor import Supervisor
 from printhost.startup import secret_key_refusal
 
@@ -31,10 +37,33 @@ class Command(BaseCommand):
             action="store_true",
             help="no Celery worker or beat here (another host runs them)",
         )
+        parser.add_argument(
+            "--no-workers",
+            action="store_true",
+            help="the control plane of a farm: no printer workers or simulators here",
+        )
+        parser.add_argument(
+            "--worker-host",
+            metavar="NAME",
+            default="",
+            help="run the printers assigned to worker host NAME only, with its "
+            "heartbeat and file fetcher; implies --no-celery (requires --no-web)",
+        )
+        parser.add_argument(
+            "--metrics-port",
+            type=int,
+            default=0,
+            help="a worker host serves its own Prometheus /metrics on this port "
+            "(0 = none; the control plane serves /metrics with the web UI)",
+        )
+        parser.add_argument("--metrics-bind", default="127.0.0.1")
 
     def handle(self, *args: Any, **options: Any) -> None:
         # Children (simulators: their --record check) see the same data directory.
         os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
+        worker_host = self._worker_host(options)
+        # Workers claim only printers of the host they run on (their lease says so).
+        os.environ["PRINTHOST_WORKER_HOST"] = worker_host.name if worker_host else ""
         if not options["no_web"]:
             refusal = secret_key_refusal(
                 secret_key=settings.SECRET_KEY,
@@ -47,7 +76,11 @@ class Command(BaseCommand):
             bind=options["bind"],
             port=options["port"],
             serve_web=not options["no_web"],
-            celery=not options["no_celery"],
+            celery=not options["no_celery"] and worker_host is None,
+            workers=not options["no_workers"],
+            worker_host=worker_host,
+            metrics_bind=options["metrics_bind"],
+            metrics_port=options["metrics_port"],
         )
         signal.signal(signal.SIGTERM, self.on_signal)
         signal.signal(signal.SIGINT, self.on_signal)
@@ -57,6 +90,27 @@ class Command(BaseCommand):
             )
         self.supervisor.run()
         self.stdout.write("printhost stopped")
+
+    def _worker_host(self, options: dict[str, Any]) -> HostRegistration | None:
+        """This runhost as the worker host it names, claimed; None on a control plane."""
+        name = options["worker_host"]
+        if not name:
+            return None
+        if not options["no_web"]:
+            raise CommandError(
+                "a worker host serves no web UI: run it with --no-web --worker-host "
+                f"{name} (the control plane serves the UI and the API)"
+            )
+        if options["no_workers"]:
+            raise CommandError("--worker-host runs workers: drop --no-workers")
+        registration = HostRegistration(name)
+        try:
+            host = registration.claim()
+        except HostRefused as error:
+            raise CommandError(str(error)) from None
+        slugs = ", ".join(host.printer_set.values_list("slug", flat=True)) or "none yet"
+        self.stdout.write(f"worker host {name}: printers {slugs}")
+        return registration
 
     def on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.supervisor.shutdown = True

@@ -1,0 +1,104 @@
+"""Worker hosts: the computers on the shelves that printers are plugged into.
+
+A printer names its worker host (`Printer.worker_host`; none = the control plane's
+own runhost). `runhost --worker-host NAME` runs the workers of that host's printers
+only and writes the host's heartbeat here every few seconds; the host fetches job
+files from the control plane with the host's own key (stored as SHA-256, shown
+once by `manage.py worker_host add NAME`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import secrets
+from datetime import timedelta
+from typing import Any
+
+from django.core.validators import RegexValidator
+from django.db import models
+from django.utils import timezone
+
+_NAME = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - and _")
+
+#: A host whose heartbeat is older than this is shown offline.
+HEARTBEAT_STALE_SECONDS = 30.0
+#: Characters of the key kept in clear to find its row (safe to show).
+KEY_PREFIX_CHARS = 10
+
+
+def key_digest(key: str) -> str:
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+class WorkerHost(models.Model):
+    """One worker host: its key for file fetches and its last heartbeat."""
+
+    name = models.SlugField(max_length=50, unique=True, validators=[_NAME])
+    description = models.CharField(max_length=200, blank=True)
+    enabled = models.BooleanField(
+        default=True, help_text="a disabled host's runhost refuses to start"
+    )
+    key_prefix = models.CharField(max_length=32, blank=True, editable=False)
+    key_hash = models.CharField(max_length=64, blank=True, editable=False)
+
+    # Written by the host's runhost (the heartbeat).
+    instance = models.CharField(
+        max_length=200, blank=True, help_text="hostname:pid:random of the runhost"
+    )
+    hostname = models.CharField(max_length=255, blank=True)
+    version = models.CharField(max_length=50, blank=True)
+    started_at = models.DateTimeField(null=True, blank=True)
+    seen_at = models.DateTimeField(null=True, blank=True)
+    #: {"loadavg": [1, 5, 15], "cpus": n, "memory_mb": n, "disk_free_mb": n}
+    load = models.JSONField(default=dict, blank=True)
+    #: {slug: {"pid": n, "running": bool, "restarts": n}} as the host runs them.
+    printers = models.JSONField(default=dict, blank=True)
+    #: Where the host serves its own /metrics (host:port), for scrape configs.
+    metrics_address = models.CharField(max_length=255, blank=True)
+
+    class Meta:
+        ordering = ["name"]
+
+    def __str__(self) -> str:
+        return self.name
+
+    def issue_key(self) -> str:
+        """A new key for this host (the old one stops working); shown only now."""
+        key = f"ph_host_{secrets.token_urlsafe(24)}"
+        self.key_prefix = key[: len("ph_host_") + KEY_PREFIX_CHARS]
+        self.key_hash = key_digest(key)
+        self.save(update_fields=["key_prefix", "key_hash"])
+        return key
+
+    def key_matches(self, key: str) -> bool:
+        return bool(self.key_hash) and secrets.compare_digest(
+            self.key_hash, key_digest(key)
+        )
+
+    @property
+    def online(self) -> bool:
+        if self.seen_at is None:
+            return False
+        stale = timedelta(seconds=HEARTBEAT_STALE_SECONDS)
+        return timezone.now() - self.seen_at < stale
+
+    def heartbeat_age(self) -> float | None:
+        """Seconds since the last heartbeat (None: never seen)."""
+        if self.seen_at is None:
+            return None
+        return max(0.0, (timezone.now() - self.seen_at).total_seconds())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "enabled": self.enabled,
+            "online": self.online,
+            "hostname": self.hostname,
+            "version": self.version,
+            "started_at": self.started_at.isoformat() if self.started_at else None,
+            "seen_at": self.seen_at.isoformat() if self.seen_at else None,
+            "heartbeat_age": self.heartbeat_age(),
+            "load": self.load,
+            "printers": self.printers,
+        }

@@ -1,0 +1,92 @@
+"""`manage.py worker_host add|key|list|remove NAME`: the farm's worker hosts."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from django.core.exceptions import ValidationError
+from django.core.management.base import BaseCommand, CommandError
+from django.db.models import ProtectedError
+
+from printers.hosts import WorkerHost
+
+if TYPE_CHECKING:
+    from argparse import ArgumentParser
+
+
+class Command(BaseCommand):
+    help = (
+        "Add a worker host (its key is shown once), issue it a new key, list the "
+        "hosts with their heartbeat, or remove one that drives no printer."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        actions = parser.add_subparsers(dest="action", required=True)
+        add = actions.add_parser("add", help="a new worker host; prints its key")
+        add.add_argument("name")
+        add.add_argument("--description", default="")
+        key = actions.add_parser("key", help="a new key (the old one stops working)")
+        key.add_argument("name")
+        actions.add_parser("list", help="the hosts, their printers and heartbeat")
+        remove = actions.add_parser("remove", help="remove a host with no printers")
+        remove.add_argument("name")
+
+    def handle(self, *args: Any, **options: Any) -> None:
+        action = options["action"]
+        if action == "list":
+            self._list()
+            return
+        name = options["name"]
+        if action == "add":
+            host = WorkerHost(name=name, description=options["description"])
+            try:
+                host.full_clean()
+            except ValidationError as error:
+                raise CommandError(_messages(error)) from None
+            host.save()
+            self._show_key(host, host.issue_key())
+            return
+        host = WorkerHost.objects.filter(name=name).first()
+        if host is None:
+            known = ", ".join(WorkerHost.objects.values_list("name", flat=True))
+            raise CommandError(
+                f"no worker host named {name!r} (known: {known or 'none'})"
+            )
+        if action == "key":
+            self._show_key(host, host.issue_key())
+        elif action == "remove":
+            try:
+                host.delete()
+            except ProtectedError:
+                slugs = ", ".join(host.printer_set.values_list("slug", flat=True))
+                raise CommandError(
+                    f"worker host {name} still drives {slugs}: move those printers "
+                    "to another host first"
+                ) from None
+            self.stdout.write(f"removed worker host {name}")
+
+    def _show_key(self, host: WorkerHost, key: str) -> None:
+        self.stdout.write(f"worker host {host.name}: key (shown once): {key}")
+        self.stdout.write(
+            "on that host set PRINTHOST_HOST_KEY to it, PRINTHOST_CONTROL_URL to the "
+            f"control plane's address, and run: manage.py runhost --no-web "
+            f"--worker-host {host.name}"
+        )
+
+    def _list(self) -> None:
+        for host in WorkerHost.objects.prefetch_related("printer_set"):
+            age = host.heartbeat_age()
+            seen = "never seen" if age is None else f"seen {age:.0f} s ago"
+            state = "online" if host.online else "offline"
+            slugs = ", ".join(p.slug for p in host.printer_set.all()) or "no printers"
+            self.stdout.write(
+                f"{host.name}: {state}, {seen}, {host.hostname or '-'} "
+                f"{host.version or ''}: {slugs}"
+            )
+
+
+def _messages(error: ValidationError) -> str:
+    return "; ".join(
+        f"{field}: {' '.join(messages)}"
+        for field, messages in error.message_dict.items()
+    )

@@ -1,0 +1,93 @@
+"""The database goes away mid-print and comes back: the print goes on at full speed,
+and nothing is lost from the response log or the progress; nobody else drives it.
+
+A real worker (`runhost`) reaches a real PostgreSQL through a TCP proxy the test
+cuts for longer than the lease; the control plane's reaper, which still reaches
+the database, takes the printer for dead meanwhile; the worker, back, says the run
+went on and finishes it."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from urllib.parse import urlparse
+
+import pytest
+
+from printers.sample_gcode import commands_of, segments
+from tests.conftest import HOST_COMMANDS, wait_for
+from tests.hosts import Host, postgres_url
+from tests.netfault import TcpProxy
+
+pytestmark = [pytest.mark.slow, pytest.mark.services]
+
+LEASE = 3.0
+
+
+def test_a_print_goes_on_while_the_database_is_away_and_nothing_is_lost(
+    tmp_path: Path,
+):
+    direct = postgres_url()
+    host = Host(tmp_path, direct)
+    host.migrate()
+    record = host.add_simulated_printer("p1", sim_args="--time-scale 0")
+    text = segments(9000)
+    (tmp_path / "part.gcode").write_text(text)
+    host.manage("add_job", "p1", str(tmp_path / "part.gcode"))
+
+    proxy = TcpProxy(("127.0.0.1", 5432))
+    worker_side = Host(tmp_path, proxy.url("postgresql", urlparse(direct).path,
+                                           user="postgres"))  # fmt: skip
+    worker_side.env["PRINTHOST_LEASE_SECONDS"] = str(LEASE)
+    ran = lambda: len(record.read_text().splitlines()) if record.exists() else 0
+    job = lambda: host.query("SELECT state, lines_acked, line_count FROM jobs_job")[0]
+    owner = lambda: host.query("SELECT lease_owner FROM printers_printer")[0][0]
+    try:
+        with worker_side.running(web=False):
+            wait_for(lambda: job()[1] > 1500, 60, "the print to be under way")
+            driver = owner()
+            proxy.cut()
+            at_cut = ran()
+            # The firmware goes on running lines while the worker cannot write.
+            wait_for(lambda: ran() > at_cut + 2500, 60, "the print to go on")
+            # The control plane, which still reaches the database, takes the
+            # printer for dead once the lease has run out.
+            wait_for(
+                lambda: host.shell(
+                    "from printers.reaper import reap_silent_workers; "
+                    "print(reap_silent_workers())"
+                ) != "[]",
+                30, "the reaper to take the silent worker for dead",
+            )  # fmt: skip
+            assert job()[0] == "interrupted"
+            proxy.restore()
+            wait_for(lambda: job()[0] == "completed", 90, "the job to complete")
+            log = worker_side.log_tail(400)
+    finally:
+        proxy.close()
+
+    commands = commands_of(text)
+    printed = [c for c in record.read_text().splitlines()
+               if not c.startswith(HOST_COMMANDS)]  # fmt: skip
+    assert printed == commands, "a line was lost or repeated"
+    state, acked, count = job()
+    assert (state, acked) == ("completed", count)
+    assert owner() == "" and driver  # one driver, released at the stop
+    assert "LeaseLost" not in log and "lease lost" not in log
+    assert "the database does not answer" in log and "answers again" in log
+
+    # The response log: every id once, in order, and every job line sent in it.
+    seqs = [row[0] for row in host.query(
+        "SELECT seq FROM printers_responseline ORDER BY seq")]  # fmt: skip
+    assert seqs == list(range(1, len(seqs) + 1))
+    sent = [row[0] for row in host.query(
+        "SELECT text FROM printers_responseline WHERE kind = 1 ORDER BY seq")]  # fmt: skip
+    framed = re.compile(r"^N\d+ (.*)\*\d+$")
+    sent = [framed.sub(r"\1", line) for line in sent]
+    job_lines = [line for line in sent if not line.startswith(HOST_COMMANDS)]
+    assert job_lines == commands
+    notes = " ".join(row[0] for row in host.query(
+        "SELECT text FROM printers_responseline WHERE kind = 8"))  # fmt: skip
+    assert "went on while the database was away" in notes
+    history = host.query("SELECT outcome FROM jobs_historyentry")
+    assert history == [("completed",)]
