@@ -56,6 +56,8 @@ class SerialTransport:
         #: in select() around every call (three calls a read, two a write), which
         #: was a third of the worker's CPU per line.
         self._raw = self._fd if isinstance(port, PosixSerial) else None
+        #: The last read's *wake* descriptor was readable.
+        self.woken = False
 
     @classmethod
     def open(cls, url: str, baud: int) -> SerialTransport:
@@ -80,14 +82,22 @@ class SerialTransport:
             raise TransportError(f"{url}: cannot open port: {error}") from None
         return cls(port)
 
-    def read(self, timeout: float) -> bytes:
-        """Bytes that arrived within *timeout* seconds; b"" if none did."""
+    def read(self, timeout: float, *, wake: int | None = None) -> bytes:
+        """Bytes that arrived within *timeout* seconds; b"" if none did.
+
+        *wake*: another file descriptor that ends the wait as well (the worker's
+        database notifications); `woken` says whether it was readable.
+        """
+        self.woken = False
         if self._raw is not None:
-            return self._read_raw(self._raw, timeout)
+            return self._read_raw(self._raw, timeout, wake)
         try:
             if self._fd is not None:
-                ready, _, _ = select.select([self._fd], [], [], max(0.0, timeout))
-                if not ready:
+                fds = [self._fd] if wake is None else [self._fd, wake]
+                ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
+                if wake is not None and wake in ready:
+                    self.woken = True
+                if self._fd not in ready:
                     return b""
                 data = self._port.read(65536)
                 if not data:
@@ -101,13 +111,16 @@ class SerialTransport:
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: {error}") from None
 
-    def _read_raw(self, fd: int, timeout: float) -> bytes:
+    def _read_raw(self, fd: int, timeout: float, wake: int | None) -> bytes:
         # select() first even without a timeout: a tty set up as pyserial does
         # (VMIN = VTIME = 0) reads b"" both when nothing came and when the device
         # is gone; only after select() said "ready" does b"" mean gone.
         try:
-            ready, _, _ = select.select([fd], [], [], max(0.0, timeout))
-            if not ready:
+            fds = [fd] if wake is None else [fd, wake]
+            ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
+            if wake is not None and wake in ready:
+                self.woken = True
+            if fd not in ready:
                 return b""
             data = os.read(fd, READ_BYTES)
         except OSError as error:

@@ -266,6 +266,9 @@ PRINTHOST_LEASE_SECONDS = env_float("PRINTHOST_LEASE_SECONDS", 10.0)
 PRINTHOST_ESP_REPLY_SECONDS = env_float("PRINTHOST_ESP_REPLY_SECONDS", 5.0)
 #: How often (s) a worker looks in the database for new requests.
 PRINTHOST_POLL_SECONDS = env_float("PRINTHOST_POLL_SECONDS", 0.1)
+#: On PostgreSQL a request or a queued job wakes its worker at once (LISTEN/NOTIFY);
+#: the worker still looks this often (s), in case a notification was lost.
+PRINTHOST_FALLBACK_POLL_SECONDS = env_float("PRINTHOST_FALLBACK_POLL_SECONDS", 1.0)
 #: Address the raw TCP terminals listen on (one port per printer, `terminal_port`).
 PRINTHOST_TERMINAL_BIND = env_str("PRINTHOST_TERMINAL_BIND", "127.0.0.1")
 

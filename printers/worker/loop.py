@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import select
 import time
 from typing import TYPE_CHECKING
 
@@ -46,6 +47,7 @@ from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
 from printers.worker.sdcard import SdCardWatch
 from printers.worker.status import PrinterStatus
+from printers.worker.wakeup import Wakeups
 from printhost.longrunning import close_failed_connections
 
 if TYPE_CHECKING:
@@ -79,6 +81,15 @@ class PrinterWorker(Reactions):
             printer.pk, owner or make_owner(), settings.PRINTHOST_LEASE_SECONDS
         )
         self.poll_seconds = settings.PRINTHOST_POLL_SECONDS
+        #: PostgreSQL's notifications wake the loop when something is written for
+        #: the printer; while they do, requests and jobs are read only this often
+        #: (writes keep the poll's pace).
+        self.wakeups = Wakeups(printer.pk)
+        self.fallback_poll_seconds = max(
+            self.poll_seconds, settings.PRINTHOST_FALLBACK_POLL_SECONDS
+        )
+        #: The printer's state changed since queued jobs were last looked for.
+        self.look_for_jobs = True
         self.log = ResponseLog(printer.pk, lease=self.lease)
         self.journal = Journal(printer.pk)
         self.status = PrinterStatus(printer.pk, lease=self.lease)
@@ -107,6 +118,7 @@ class PrinterWorker(Reactions):
         self.expect_reset = False
         self.last_stream_error = ""
         self.next_poll = 0.0
+        self.next_read = 0.0
         self.next_progress = 0.0
         self.next_temperature = 0.0
         self.next_connect = 0.0
@@ -202,8 +214,10 @@ class PrinterWorker(Reactions):
         now, wait = self._pace(now, self._wait_time(now))
         self.lease.ensure(now)
         try:
-            data = self.transport.read(wait)
+            data = self.transport.read(wait, wake=self.wakeups.fileno())
             now = self.clock()
+            if self.wakeups.take(readable=self.transport.woken):
+                self.next_poll = self.next_read = now
             if data and self.pacer.modelled:
                 data, now = self._rest_of_line(data, now)
         except TransportClosed as error:
@@ -261,6 +275,9 @@ class PrinterWorker(Reactions):
 
     def _housekeeping(self, now: float) -> None:
         self.next_poll = now + self.poll_seconds
+        read = now >= self.next_read
+        if read:
+            self.next_read = now + self._read_interval()
         self.poll_temperature(now)
         try:
             if not self.lease.away:
@@ -268,9 +285,10 @@ class PrinterWorker(Reactions):
             self.lease.renew_if_due(now)
             if self.lease.recovered:
                 self.write_held(now)
-            self._check_lease(now)
-            self.requests.poll(now)
-            self.maybe_claim_job(now)
+            if read:
+                self._check_lease(now)
+                self.requests.poll(now)
+            self.maybe_claim_job(now, read=read)
             self.sd.poll(now)
             if now >= self.next_progress:
                 self.next_progress = now + PROGRESS_SECONDS
@@ -291,7 +309,7 @@ class PrinterWorker(Reactions):
         expiry) more strictly, so the lease is as fresh as a check would make it.
         While printing, the log stores four times a second: a read spared each
         time."""
-        if now - self.log.stored_at >= self.poll_seconds:
+        if now - self.log.stored_at >= self._read_interval():
             self.lease.check()
 
     def write_held(self, now: float) -> None:
@@ -323,14 +341,30 @@ class PrinterWorker(Reactions):
             self.next_poll = now + self.poll_seconds
             close_failed_connections()
             self.lease.renew_if_due(now)
-            self.lease.check()
-            self.requests.poll(now)
+            if now >= self.next_read:
+                self.next_read = now + self._read_interval()
+                self.lease.check()
+                self.requests.poll(now)
             self.status.save_if_due(now)
             self.log.flush_if_due(now)
         wake = self.next_poll
         if not self.stay_offline:
             wake = min(wake, self.next_connect)
-        time.sleep(max(0.0, min(wake - now, self.poll_seconds)))
+        seconds = max(0.0, min(wake - now, self.poll_seconds))
+        fd = self.wakeups.fileno()
+        if fd is None:
+            time.sleep(seconds)
+            return
+        readable, _, _ = select.select([fd], [], [], seconds)
+        if self.wakeups.take(readable=bool(readable)):
+            self.next_poll = self.next_read = self.clock()
+
+    def _read_interval(self) -> float:
+        """How long until requests and jobs are read again: rarely while
+        notifications wake the loop (printers/worker/wakeup.py), else every poll."""
+        if self.wakeups.listening:
+            return self.fallback_poll_seconds
+        return self.poll_seconds
 
     def _pace(self, now: float, wait: float) -> tuple[float, float]:
         """Wait while the wire is still busy with what was written (P2 in
@@ -453,6 +487,7 @@ class PrinterWorker(Reactions):
 
     def update_state(self) -> None:
         """Derive the printer's state from the link, the queues and waitstart."""
+        self.look_for_jobs = True
         if self.transport is None:
             if self.status.state not in (
                 Printer.State.OFFLINE,

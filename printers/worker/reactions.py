@@ -318,13 +318,20 @@ class Reactions:
 
     # -- jobs and periodic commands ---------------------------------------------
 
-    def maybe_claim_job(self: PrinterWorker, now: float) -> None:
-        """When idle, connected and the bed is clear, start the next queued job."""
+    def maybe_claim_job(self: PrinterWorker, now: float, *, read: bool = True) -> None:
+        """When idle, connected and the bed is clear, start the next queued job.
+
+        The queue is read when *read* (a notification, or the poll) or when the
+        printer's state changed since it was last found empty (a run ended).
+        """
         if self.transport is None or self.halted or self.waitstart:
             return
         if self.host.current_stream is not None or self.host.script_queue:
             return
+        if not (read or self.look_for_jobs):
+            return
         if not self.requests.jobs_waiting():
+            self.look_for_jobs = False
             return
         with self.lease.held():
             job = spool.claim_next(self.printer.pk)

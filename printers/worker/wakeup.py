@@ -1,0 +1,99 @@
+"""PostgreSQL tells a worker that something was written for its printer.
+
+A request (`QueuedCommand`) or a job queued for a printer fires `pg_notify` on the
+channel `printhost_printer_<id>` (triggers in jobs/migrations/0010); the worker
+LISTENs on its own database connection and waits on that socket beside the
+serial port. It reads the database when told to, and otherwise only every
+`PRINTHOST_FALLBACK_POLL_SECONDS`, instead of ten times a second: most of what an
+idle farm spent, on the worker hosts and on PostgreSQL.
+
+Without PostgreSQL (SQLite) there are no notifications: `fileno()` is None and the
+worker polls every `PRINTHOST_POLL_SECONDS` as before. A notification can be lost
+(the connection dropped, the database restarted); a new connection is LISTENed on
+again and counts as a wake-up, and the fallback poll bounds any other miss.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from django.db import connections
+
+__all__ = ["Wakeups", "channel_for"]
+
+logger = logging.getLogger("printhost.worker")
+
+
+def channel_for(printer_id: int) -> str:
+    """The notification channel of one printer (what the triggers name)."""
+    return f"printhost_printer_{int(printer_id)}"
+
+
+class Wakeups:
+    """LISTEN for one printer on the worker's database connection."""
+
+    def __init__(self, printer_id: int, *, alias: str = "default") -> None:
+        self.channel = channel_for(printer_id)
+        self.alias = alias
+        #: The psycopg connection LISTENed on (None: none yet, or not PostgreSQL).
+        self._listening: Any = None
+        #: Set by a notification psycopg read during a query of the worker's own.
+        self._heard = False
+
+    @property
+    def listening(self) -> bool:
+        """A LISTEN is in place: the worker may poll rarely."""
+        raw = self._listening
+        return raw is not None and not raw.closed
+
+    def fileno(self) -> int | None:
+        """The socket to wait on, LISTENing on the current connection first; None
+        when there is nothing to wait on (not PostgreSQL, no connection yet)."""
+        wrapper = connections[self.alias]
+        raw = wrapper.connection
+        if wrapper.vendor != "postgresql" or raw is None or raw.closed:
+            return None
+        if raw is not self._listening:
+            try:
+                self._listen(wrapper, raw)
+            except Exception as error:  # the database is away: poll meanwhile
+                logger.debug("LISTEN %s failed: %r", self.channel, error)
+                return None
+            if raw is not self._listening:
+                return None
+        try:
+            return raw.pgconn.socket
+        except Exception:
+            return None
+
+    def _listen(self, wrapper: Any, raw: Any) -> None:
+        if wrapper.in_atomic_block:
+            return  # LISTEN would wait for the commit; the next call does it
+        with wrapper.cursor() as cursor:
+            cursor.execute(f"LISTEN {self.channel}")
+        raw.add_notify_handler(self._on_notify)
+        self._listening = raw
+        # Whatever was written while there was no LISTEN is looked for now.
+        self._heard = True
+
+    def _on_notify(self, notify: Any) -> None:
+        if notify.channel == self.channel:
+            self._heard = True
+
+    def take(self, *, readable: bool) -> bool:
+        """Whether a notification came since the last call; *readable*: the socket
+        was, so what it holds is read first (without waiting)."""
+        raw = self._listening
+        if readable and raw is not None and not raw.closed:
+            try:
+                raw.pgconn.consume_input()
+                while (notify := raw.pgconn.notifies()) is not None:
+                    if notify.relname.decode() == self.channel:
+                        self._heard = True
+            except Exception as error:  # a broken connection: Django reopens it
+                logger.debug("notifications on %s: %r", self.channel, error)
+                self._listening = None
+                self._heard = True
+        heard, self._heard = self._heard, False
+        return heard
