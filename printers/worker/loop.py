@@ -487,7 +487,12 @@ class PrinterWorker(Reactions):
 
     def update_state(self) -> None:
         """Derive the printer's state from the link, the queues and waitstart."""
-        self.look_for_jobs = True
+        before = self.status.state
+        self._derive_state()
+        if self.status.state != before:
+            self.look_for_jobs = True
+
+    def _derive_state(self) -> None:
         if self.transport is None:
             if self.status.state not in (
                 Printer.State.OFFLINE,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -21,6 +22,10 @@ import websockets
 
 if TYPE_CHECKING:
     from collections.abc import Coroutine
+
+
+#: The clients' thread runs this much nicer than the farm's processes.
+CLIENT_NICE = 10
 
 
 @dataclass
@@ -139,6 +144,10 @@ class Crowd:
         return all(w.start is not None for w in self.watchers)
 
     def _run(self) -> None:
+        # The clients stand for browsers and hosts on other computers: on this one
+        # they must not take the printers' CPU (the thread's own niceness).
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), CLIENT_NICE)
         asyncio.set_event_loop(self._loop)
         self._loop.run_until_complete(self._main())
 

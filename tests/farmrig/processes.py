@@ -98,3 +98,49 @@ def cpu_seconds(pid: int) -> float | None:
         return None
     fields = stat.rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / TICKS
+
+
+#: What a process of the farm is, by a word of its command line (first match wins).
+KINDS = (
+    ("run_printer", "workers"),
+    ("printers.simulator", "simulators"),
+    ("printhost.serve", "daphne"),
+    ("celery", "celery"),
+    ("run_dispatcher", "dispatcher"),
+    ("fetch_files", "fetchers"),
+    ("runhost", "runhost"),
+    ("postgres", "postgresql"),
+    ("redis-server", "redis"),
+)
+
+
+def cpu_by_kind() -> dict[str, float]:
+    """CPU seconds used so far by every process of each kind (KINDS), and by this
+    process (`harness`: the benchmark and its clients); per pid, so a kind's
+    share over a span is the difference of two readings of the pids alive in both."""
+    out: dict[str, float] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ")
+        except OSError:
+            continue
+        if int(entry.name) == os.getpid():
+            kind = "harness"
+        else:
+            kind = next((k for word, k in KINDS if word.encode() in command), "")
+        used = cpu_seconds(int(entry.name)) if kind else None
+        if used is not None:
+            out[f"{kind}:{entry.name}"] = used
+    return out
+
+
+def shares(before: dict[str, float], after: dict[str, float], wall: float) -> dict:
+    """Cores used by each kind between two `cpu_by_kind` readings *wall* s apart."""
+    cores: dict[str, float] = {}
+    for key, used in after.items():
+        if key in before:
+            kind = key.split(":", 1)[0]
+            cores[kind] = cores.get(kind, 0.0) + (used - before[key]) / wall
+    return {k: round(v, 3) for k, v in sorted(cores.items(), key=lambda kv: -kv[1])}
