@@ -51,6 +51,10 @@ SEND_TIMEOUT = 0.5
 PAUSE_AFTER_FAILURE = 5.0
 #: A failing layer is logged at most this often (s).
 LOG_EVERY = 60.0
+#: A running job's progress is published from the row read at most this long ago
+#: (s) with the worker's own counters: once a second, the read cost more than the
+#: rest of the publish. Anything else about the job re-reads it at once.
+JOB_REREAD_SECONDS = 10.0
 #: Printer fields sent as `state` (temperatures have their own message).
 STATE_FIELDS = (
     "state",
@@ -91,6 +95,8 @@ class LivePublisher:
         self._down_until = 0.0
         self._logged_at = -LOG_EVERY
         self._state: dict[int, dict[str, Any]] = {}
+        #: (job, when read) for progress updates between reads.
+        self._job: tuple[Job, float] | None = None
         self.sent = 0
         self.dropped = 0
 
@@ -129,16 +135,33 @@ class LivePublisher:
             event = {"type": "temperatures", "temperatures": values["temperatures"]}
             self._send(printer_id, event)
 
-    def job(self, job_id: int | None) -> None:
-        """A job's row was saved: publish its progress as stored."""
+    def job(
+        self, job_id: int | None, *, progress: dict[str, int] | None = None
+    ) -> None:
+        """A job's row was saved: publish it as stored. *progress*: only these
+        counters changed (the worker's progress save), so a row read within
+        JOB_REREAD_SECONDS serves with them put in."""
         if not self.enabled or job_id is None:
             return
-        job = (
-            Job.objects.filter(pk=job_id)
-            .select_related("printer", "analysis")
-            .defer("analysis__result")
-            .first()
-        )
+        now = time.monotonic()
+        cached = self._job
+        if (
+            progress is not None
+            and cached is not None
+            and cached[0].pk == job_id
+            and now - cached[1] < JOB_REREAD_SECONDS
+        ):
+            job = cached[0]
+            for name, value in progress.items():
+                setattr(job, name, value)
+        else:
+            job = (
+                Job.objects.filter(pk=job_id)
+                .select_related("printer", "analysis")
+                .defer("analysis__result")
+                .first()
+            )
+            self._job = None if job is None else (job, now)
         if job is not None:
             self._send(job.printer_id, {"type": "job", "job": job.as_dict()})
 

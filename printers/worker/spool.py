@@ -180,7 +180,7 @@ def save_progress(stream: Stream, *, state: str | None = None) -> None:
     if state:
         fields["state"] = state
     Job.objects.filter(pk=stream.ref).update(**fields)
-    broadcast.publisher().job(stream.ref)
+    broadcast.publisher().job(stream.ref, progress=None if state else fields)
 
 
 def final_state(stream: Stream) -> Job.State:

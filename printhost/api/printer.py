@@ -49,7 +49,7 @@ from printhost.api.common import (
     refuse_acting_get,
     request_params,
 )
-from printhost.api.shapes import printer_entry, printer_state
+from printhost.api.shapes import printer_entries, printer_state
 from printhost.api.storing import (
     autostart_mode,
     chunked_upload,
@@ -79,7 +79,7 @@ RESPONSE_PAGE = 1000
 def printer_list(request: HttpRequest) -> HttpResponse:
     """The seed's printer list. No `error` key on success (PrusaSlicer needs that)."""
     printers = caller_of(request).printers(Role.VIEWER)
-    return JsonResponse({"data": [printer_entry(p) for p in printers]})
+    return JsonResponse({"data": printer_entries(printers)})
 
 
 @router.api_operation(["GET", "POST"], "/printer/send/{slug}", summary="Send a command")

@@ -24,7 +24,7 @@ from printhost.api.common import (
     refuse_acting_get,
     request_params,
 )
-from printhost.api.shapes import printer_entry
+from printhost.api.shapes import printer_entries
 from printhost.api.storing import store_upload, upload_target, uploaded_file
 from printhost.clients import PrinterOffline, run_action, run_command
 from printhost.models import Role
@@ -36,11 +36,10 @@ router = Router(tags=["printer (Repetier-Server dialect)"])
 def printer_info(request: HttpRequest) -> HttpResponse:
     """What Repetier clients test a connection with; `name` starts with "Repetier"."""
     caller = caller_of(request)
-    printers = []
-    for printer in caller.printers(Role.VIEWER):
-        entry = printer_entry(printer)
-        printers.append({k: entry[k] for k in ("slug", "name", "online", "active")})
-        printers[-1]["job"] = entry["job"]
+    printers = [
+        {k: entry[k] for k in ("slug", "name", "online", "active", "job")}
+        for entry in printer_entries(caller.printers(Role.VIEWER))
+    ]
     return JsonResponse(
         {
             "name": "Repetier-Server compatible printhost",
@@ -89,7 +88,7 @@ def _temps(printer: Printer) -> dict[str, Any]:
 
 def _list_printer_entry(printer: Printer) -> dict[str, Any]:
     active = running_job(printer.pk)
-    entry = printer_entry(printer)
+    (entry,) = printer_entries([printer])
     elapsed = (active.elapsed_seconds() if active else None) or 0
     return {
         **entry,

@@ -92,6 +92,27 @@ def test_job_progress_is_published_as_stored(
     assert event["job"]["lines"] == 2
 
 
+@pytest.mark.django_db
+def test_progress_between_reads_comes_from_the_worker_and_anything_else_rereads(
+    make_printer: Callable[..., Printer],
+    make_job: Callable[..., object],
+    django_assert_num_queries: Callable[..., object],
+) -> None:
+    printer = make_printer()
+    job = make_job(printer, "G28\nG1 X1\nG1 X2\n")
+    publisher = broadcast.LivePublisher(enabled=True)
+    receive = listen(publisher, printer.pk)
+    publisher.job(job.pk, progress={"lines_acked": 1})
+    assert receive()["event"]["job"]["lines_acked"] == 0  # the first one reads the row
+    type(job).objects.filter(pk=job.pk).update(lines_acked=2, message="a note")
+    with django_assert_num_queries(0):
+        publisher.job(job.pk, progress={"lines_acked": 2, "lines_sent": 3})
+    event = receive()["event"]["job"]
+    assert (event["lines_acked"], event["lines_sent"], event["message"]) == (2, 3, "")
+    publisher.job(job.pk)  # not a progress save: the row as stored
+    assert receive()["event"]["job"]["message"] == "a note"
+
+
 def test_nothing_is_published_without_a_cross_process_layer() -> None:
     assert broadcast.publisher().enabled is False
     broadcast.publisher().lines(1, [(1, datetime.now(UTC), "ok", 2)])
