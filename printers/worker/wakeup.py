@@ -16,6 +16,7 @@ again and counts as a wake-up, and the fallback poll bounds any other miss.
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 from django.db import connections
@@ -23,6 +24,9 @@ from django.db import connections
 __all__ = ["Wakeups", "channel_for"]
 
 logger = logging.getLogger("printhost.worker")
+
+#: After a failed LISTEN (the database away) the next try waits this long (s).
+RETRY_SECONDS = 1.0
 
 
 def channel_for(printer_id: int) -> str:
@@ -40,6 +44,7 @@ class Wakeups:
         self._listening: Any = None
         #: Set by a notification psycopg read during a query of the worker's own.
         self._heard = False
+        self._retry_at = 0.0
 
     @property
     def listening(self) -> bool:
@@ -55,10 +60,14 @@ class Wakeups:
         if wrapper.vendor != "postgresql" or raw is None or raw.closed:
             return None
         if raw is not self._listening:
+            now = time.monotonic()
+            if now < self._retry_at:
+                return None
             try:
                 self._listen(wrapper, raw)
             except Exception as error:  # the database is away: poll meanwhile
                 logger.debug("LISTEN %s failed: %r", self.channel, error)
+                self._retry_at = now + RETRY_SECONDS
                 return None
             if raw is not self._listening:
                 return None
