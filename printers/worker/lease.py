@@ -255,32 +255,31 @@ class Lease:
             )
 
     def _still_mine(self) -> bool:
-        """The row names this worker, unexpired: one indexed read in plain SQL (an
-        idle worker asks ten times a second; the ORM's query costs several times
-        the database's answer)."""
-        db = connections[Printer.objects.db]
-        sql = (
-            f"SELECT 1 FROM {db.ops.quote_name(Printer._meta.db_table)} "
-            "WHERE id = %s AND lease_owner = %s AND lease_expires_at > %s"
-        )
-        now = db.ops.adapt_datetimefield_value(timezone.now())
-        with db.cursor() as cursor:
-            cursor.execute(sql, [self.printer_id, self.owner, now])
-            return cursor.fetchone() is not None
+        """The row names this worker, unexpired: one indexed read."""
+        return self._on_my_row("SELECT 1 FROM {table}") == 1
 
     def _seen(self) -> int:
         """Within a transaction: note the worker was seen, on its row only while it
-        still holds the lease, and lock the row (1) or find it is not (0). Plain SQL
-        for the same reason as `_still_mine`: every batch of the log runs it."""
+        still holds the lease, and lock the row (1) or find it is not (0)."""
+        return self._on_my_row("UPDATE {table} SET worker_seen_at = %s", stamp=True)
+
+    def _on_my_row(self, head: str, *, stamp: bool = False) -> int:
+        """Run *head* (a SELECT or UPDATE of `{table}`; with *stamp*, its first `%s`
+        is now) on the printer's row while it names this worker, unexpired; how
+        many rows it found. Plain SQL: an idle worker checks every second and every
+        batch of the log writes, and the ORM's query cost several times the
+        database's answer (1.6 ms against 0.1 ms here)."""
         db = connections[Printer.objects.db]
-        sql = (
-            f"UPDATE {db.ops.quote_name(Printer._meta.db_table)} SET worker_seen_at = %s "
-            "WHERE id = %s AND lease_owner = %s AND lease_expires_at > %s"
-        )
+        table = db.ops.quote_name(Printer._meta.db_table)
         now = db.ops.adapt_datetimefield_value(timezone.now())
+        sql = (
+            head.format(table=table)
+            + " WHERE id = %s AND lease_owner = %s AND lease_expires_at > %s"
+        )
+        params = [now] if stamp else []
         with db.cursor() as cursor:
-            cursor.execute(sql, [now, self.printer_id, self.owner, now])
-            return cursor.rowcount
+            cursor.execute(sql, [*params, self.printer_id, self.owner, now])
+            return cursor.rowcount if stamp else len(cursor.fetchall())
 
     @contextmanager
     def held(self) -> Iterator[None]:
