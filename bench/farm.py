@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import secrets
 import shutil
 import signal
 import statistics
@@ -42,6 +43,8 @@ import time
 import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import httpx
 
 from tests.conftest import wait_for
 from tests.farmrig import checks
@@ -58,6 +61,10 @@ ROOT = Path(__file__).resolve().parent.parent
 PRINTERS_GOAL = 32
 SLOWDOWN_GOAL = 0.02
 CPU_PER_1K_GOAL = 0.1
+#: The farm's /metrics token: the server's own request latency comes from there.
+METRICS_TOKEN = secrets.token_urlsafe(16)
+#: The routes the API load asks (server-side latency is read for these).
+LOAD_ROUTES = ("/printer/state/<slug>", "/printer/list", "/printer/farm")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         hosts=options.hosts, printers=options.printers, jobs=options.jobs,
         time_scale=options.time_scale, lease_seconds=10.0,
         long_files=options.long, patience=8.0,
+        env={"PRINTHOST_METRICS_TOKEN": METRICS_TOKEN},
     )  # fmt: skip
     root = Path(tempfile.mkdtemp(prefix="printhost-bench-farm-"))
     out = Path(options.out)
@@ -227,8 +235,59 @@ def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) 
         "api_median_ms": round(statistics.median(load.latencies) * 1000, 1)
         if load.latencies
         else None,
+        "client_lag_p95_ms": round(_p95(load.lags) * 1000, 1) if load.lags else None,
+        "server": server_latency(farm),
     }
     return out
+
+
+def _p95(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(0.95 * len(ordered)))]
+
+
+def server_latency(farm: Farm) -> dict[str, Any]:
+    """The control plane's own time for the load's GETs, from its /metrics histogram
+    (reaching Django to the response; bucket bounds, so "at most"): what the
+    client's latency adds is the requests' wait for a connection and for daphne."""
+    headers = {"Authorization": f"Bearer {METRICS_TOKEN}"}
+    try:
+        with httpx.Client(base_url=farm.control.url, timeout=30) as client:
+            text = client.get("/metrics", headers=headers).text
+    except httpx.HTTPError as error:
+        return {"error": repr(error)}
+    return load_latency(text)
+
+
+def load_latency(text: str) -> dict[str, Any]:
+    """Median and p95 (bucket bounds) of the load's GETs in a /metrics text."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    buckets: dict[float, float] = {}
+    for family in text_string_to_metric_families(text):
+        if family.name != "printhost_http_request_duration_seconds":
+            continue
+        for sample in family.samples:
+            labels = sample.labels
+            if (
+                sample.name.endswith("_bucket")
+                and labels.get("method") == "GET"
+                and labels.get("route") in LOAD_ROUTES
+            ):
+                bound = float(labels["le"])
+                buckets[bound] = buckets.get(bound, 0.0) + sample.value
+    total = buckets.get(float("inf"), 0.0)
+    if not total:
+        return {"requests": 0}
+
+    def at_most(share: float) -> float:
+        return next(b for b in sorted(buckets) if buckets[b] >= share * total)
+
+    return {
+        "requests": int(total),
+        "median_at_most_ms": at_most(0.5) * 1000,
+        "p95_at_most_ms": at_most(0.95) * 1000,
+    }
 
 
 def run_checks(farm: Farm) -> dict[str, str]:
@@ -440,8 +499,12 @@ def judge(report: dict) -> list[str]:
         f"{report['web']['api_rate']:g} API requests/s: worst {_pct(worst)}, median "
         f"{_pct(statistics.median(slow) if slow else None)} < {SLOWDOWN_GOAL:.0%}"
     )
-    lines.append(f"INFO web p95 latency {report['web']['api_p95_ms']} ms "
-                 f"({report['web']['api_errors']} errors)")  # fmt: skip
+    web = report["web"]
+    lines.append(
+        f"INFO web p95 latency {web['api_p95_ms']} ms as the clients saw it "
+        f"({web['api_errors']} errors; the clients' own lag p95 "
+        f"{web.get('client_lag_p95_ms')} ms); in Django: {web.get('server')}"
+    )
     workers = report["workers"]
     lines.append(
         f"INFO worker CPU per printer while printing: "

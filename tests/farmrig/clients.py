@@ -82,6 +82,9 @@ class ApiLoad:
     rate: float
     latencies: list[float] = field(default_factory=list)
     errors: int = 0
+    #: How late each request left against its schedule (the client's own loop
+    #: busy, not the server): what the latencies include of the client.
+    lags: list[float] = field(default_factory=list)
 
     async def run(self, stop: asyncio.Event) -> None:
         headers = {"X-Api-Key": self.key}
@@ -94,6 +97,7 @@ class ApiLoad:
             while not stop.is_set():
                 due = start + n / self.rate
                 await asyncio.sleep(max(0.0, due - time.monotonic()))
+                self.lags.append(time.monotonic() - due)
                 task = asyncio.ensure_future(
                     self._get(client, self.paths[n % len(self.paths)])
                 )
