@@ -93,11 +93,7 @@ class SerialTransport:
             return self._read_raw(self._raw, timeout, wake)
         try:
             if self._fd is not None:
-                fds = [self._fd] if wake is None else [self._fd, wake]
-                ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
-                if wake is not None and wake in ready:
-                    self.woken = True
-                if self._fd not in ready:
+                if not self._ready(self._fd, timeout, wake):
                     return b""
                 data = self._port.read(65536)
                 if not data:
@@ -111,16 +107,20 @@ class SerialTransport:
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: {error}") from None
 
+    def _ready(self, fd: int, timeout: float, wake: int | None) -> bool:
+        """Wait up to *timeout* for *fd* or *wake*; `woken` says whether *wake* was
+        readable; True when *fd* is."""
+        fds = [fd] if wake is None else [fd, wake]
+        ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
+        self.woken = wake is not None and wake in ready
+        return fd in ready
+
     def _read_raw(self, fd: int, timeout: float, wake: int | None) -> bytes:
         # select() first even without a timeout: a tty set up as pyserial does
         # (VMIN = VTIME = 0) reads b"" both when nothing came and when the device
         # is gone; only after select() said "ready" does b"" mean gone.
         try:
-            fds = [fd] if wake is None else [fd, wake]
-            ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
-            if wake is not None and wake in ready:
-                self.woken = True
-            if fd not in ready:
+            if not self._ready(fd, timeout, wake):
                 return b""
             data = os.read(fd, READ_BYTES)
         except OSError as error:
