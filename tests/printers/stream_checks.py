@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from typing import TYPE_CHECKING
 
 from jobs.models import Job
@@ -49,9 +50,20 @@ def assert_streamed_exactly(sim: Sim, text: str) -> None:
     A byte the simulator's RX ring dropped means the host overran the firmware:
     the stream survived by luck (a resend), so the test fails anyway.
     """
-    wait_for(lambda: len(sim.executed()) >= sim_stats(sim)["executed"], 5, "the record")
     expected = commands_of(text)
+    # Marlin acknowledges a move once it is in the planner, before it runs: the job
+    # can be complete a moment before the firmware ran its last moves. A line that
+    # was lost never comes, and the comparison below says which.
+    with contextlib.suppress(AssertionError):
+        wait_for(lambda: len(job_lines(sim)) >= len(expected), 5, "the last moves")
     ran = job_lines(sim)
-    assert len(ran) == len(expected), (len(ran), len(expected))
-    assert ran == expected, "a line was lost, repeated or reordered"
+    at = next(
+        (i for i, (a, b) in enumerate(zip(ran, expected, strict=False)) if a != b),
+        min(len(ran), len(expected)),
+    )
+    assert ran == expected, (
+        f"a line was lost, repeated or reordered: {len(ran)} ran of "
+        f"{len(expected)}; first difference at {at}: {ran[at : at + 2]} instead of "
+        f"{expected[at : at + 2]}"
+    )
     assert sim_stats(sim)["dropped_bytes"] == 0, "the firmware's RX buffer overflowed"
