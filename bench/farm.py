@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import httpx
 
+from bench.farm_report import PRINTERS_GOAL, capacity_line, judge, summary
 from tests.conftest import wait_for
 from tests.farmrig import checks
 from tests.farmrig.clients import ApiLoad, Crowd, Watcher
@@ -57,10 +58,6 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
 ROOT = Path(__file__).resolve().parent.parent
-#: Issue 11's goals.
-PRINTERS_GOAL = 32
-SLOWDOWN_GOAL = 0.02
-CPU_PER_1K_GOAL = 0.1
 #: The farm's /metrics token: the server's own request latency comes from there.
 METRICS_TOKEN = secrets.token_urlsafe(16)
 #: The routes the API load asks (server-side latency is read for these).
@@ -126,7 +123,7 @@ def run_farm(folder: Path, config: FarmConfig, options: argparse.Namespace) -> d
         report["baseline"] = baseline(farm)
         print(f"baseline: {report['baseline']}", flush=True)
         report["capacity"] = capacity_phase(farm, report["baseline"])
-        print(f"capacity: {_capacity_line(report['capacity'])}", flush=True)
+        print(f"capacity: {capacity_line(report['capacity'])}", flush=True)
         report.update(farm_phase(farm, report["baseline"], options))
     except Exception:
         report["error"] = traceback.format_exc()
@@ -185,16 +182,6 @@ def capacity_phase(farm: Farm, base: dict[str, float]) -> dict:
         "jobs": figures,
         "cpu_cores": shares(cpu, cpu_by_kind(), seconds),
     }
-
-
-def _capacity_line(capacity: dict) -> str:
-    slow = [j["slowdown"] for j in capacity["jobs"]]
-    return (
-        f"{len(slow)} jobs, most at once "
-        f"{max((j['concurrent'] for j in capacity['jobs']), default=0)}, slowdown "
-        f"median {_pct(statistics.median(slow) if slow else None)}, worst "
-        f"{_pct(max(slow) if slow else None)}; cores {capacity['cpu_cores']}"
-    )
 
 
 def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) -> dict:
@@ -456,108 +443,6 @@ def _factory(folder: Path, config: FarmConfig, farms: list[Farm]) -> Callable:
         return farm
 
     return make
-
-
-# -- the verdicts ----------------------------------------------------------------------
-
-
-def driven_within(jobs: list[dict], goal: float = SLOWDOWN_GOAL) -> int:
-    """The most printers printing at once such that every job that ran with at most
-    that many printers finished within *goal* of its single-printer time."""
-    best = 0
-    for level in sorted({j["concurrent"] for j in jobs}):
-        if all(j["slowdown"] <= goal for j in jobs if j["concurrent"] <= level):
-            best = level
-        else:
-            break
-    return best
-
-
-def judge(report: dict) -> list[str]:
-    if "error" in report:
-        return [f"FAIL the farm did not run: {report['error'].splitlines()[-1]}"]
-    lines = []
-    for name, result in report["checks"].items():
-        lines.append(
-            f"{'PASS' if result == 'ok' else 'FAIL'} farm: {name}: {result[:300]}"
-        )
-    jobs = report["jobs"]
-    capacity = report.get("capacity", {}).get("jobs", [])
-    driven = driven_within(capacity)
-    lines.append(
-        f"{'PASS' if driven >= PRINTERS_GOAL else 'FAIL'} printers one 2-core machine "
-        f"drives with every job within {SLOWDOWN_GOAL:.0%} of its single-printer "
-        f"time: {driven} >= {PRINTERS_GOAL} (the control plane, PostgreSQL, Redis "
-        f"and the simulators on the same cores; worst "
-        f"{_pct(max((j['slowdown'] for j in capacity), default=None))})"
-    )
-    slow = [j["slowdown"] for j in jobs]
-    worst = max(slow) if slow else None
-    lines.append(
-        f"{'PASS' if worst is not None and worst < SLOWDOWN_GOAL else 'FAIL'} stream "
-        f"slowdown with {report['web']['clients']} websocket clients and "
-        f"{report['web']['api_rate']:g} API requests/s: worst {_pct(worst)}, median "
-        f"{_pct(statistics.median(slow) if slow else None)} < {SLOWDOWN_GOAL:.0%}"
-    )
-    web = report["web"]
-    lines.append(
-        f"INFO web p95 latency {web['api_p95_ms']} ms as the clients saw it "
-        f"({web['api_errors']} errors; the clients' own lag p95 "
-        f"{web.get('client_lag_p95_ms')} ms); in Django: {web.get('server')}"
-    )
-    workers = report["workers"]
-    lines.append(
-        f"INFO worker CPU per printer while printing: "
-        f"{_pct(workers['cpu_share_mean'])} of a core on average, "
-        f"{workers['cpu_s_per_1k_lines_median']} s per 1,000 lines at these prints' "
-        f"line rate (the {CPU_PER_1K_GOAL} s goal at 250000 baud is bench.streaming's)"
-    )
-    for name, result in report.get("faults", {}).items():
-        lines.append(f"{'PASS' if result.startswith('ok') else 'FAIL'} fault: {name}: "
-                     f"{result[:300]}")  # fmt: skip
-    return lines
-
-
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{value:+.2%}"
-
-
-def summary(report: dict) -> str:
-    if "error" in report:
-        return "farm: did not run"
-    workers = report["workers"]
-    jobs = report["jobs"]
-    rows = [
-        f"farm: {report['config']['printers']} printers, {report['config']['hosts']} "
-        f"worker hosts, {len(jobs)} jobs in {report['farm_seconds']} s at time scale "
-        f"{report['config']['time_scale']:g}",
-        "baseline (one printer alone): "
-        + ", ".join(f"{Path(f).stem} {s:.1f} s" for f, s in report["baseline"].items()),
-        f"capacity (one job per printer at once, no web load): "
-        f"{_capacity_line(report['capacity'])}",
-        f"most printers printing at once: {max((j['concurrent'] for j in jobs), default=0)}",
-        *slowdown_rows(jobs),
-        f"worker CPU per printer: mean {_pct(workers['cpu_share_mean'])} of a core, "
-        f"all workers {workers['cpu_share_total']} cores; per 1,000 lines (median) "
-        f"{workers['cpu_s_per_1k_lines_median']} s",
-        f"web: {report['web']}",
-        f"cores used during the farm phase: {report['cpu_cores']}",
-    ]
-    return "\n".join(rows)
-
-
-def slowdown_rows(jobs: list[dict]) -> list[str]:
-    """Slowdown against the baseline by how many printers were printing meanwhile."""
-    rows = []
-    for low, high in ((1, 8), (9, 16), (17, 24), (25, 32), (33, 10**6)):
-        these = [j["slowdown"] for j in jobs if low <= j["concurrent"] <= high]
-        if these:
-            rows.append(
-                f"  {low}-{high if high < 10**6 else ''} printing at once: "
-                f"{len(these)} jobs, slowdown median {_pct(statistics.median(these))}, "
-                f"worst {_pct(max(these))}"
-            )
-    return rows
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ from printers.supervisor import NICENESS, Child
     [("worker:mk3", 0), ("sim:mk3", 0), ("daphne", 5), ("celery", 10), ("fetcher", 10)],
 )
 def test_work_that_can_wait_runs_nicer_than_the_printers(name, added):
-    child = Child(name, [sys.executable, "-c", "import time; time.sleep(60)"])
+    child = Child(name, [sys.executable, "-c", "import signal; signal.pause()"])
     child.start(0.0)
     try:
         mine = os.getpriority(os.PRIO_PROCESS, 0)
