@@ -104,6 +104,8 @@ class GrblProtocol:
         self.printing = False
         #: No file writing on GRBL; kept for the LinkProtocol contract.
         self.writing_file = False
+        #: No line numbers to check: every line brings its own ok or error.
+        self.closing_sync: str | None = None
         #: Command lines written so far (not counting realtime bytes or polls).
         self.lines_sent = 0
         #: Command lines answered (ok or error:N) so far.

@@ -31,6 +31,9 @@ class LinkProtocol(Protocol):
     #: True while the firmware writes every line into a file (Marlin's M28): the
     #: protocol sends nothing of its own then.
     writing_file: bool
+    #: A command to send after a job's last line, whose answer proves the firmware
+    #: got every line before it (Marlin: a numbered M105); None when there is none.
+    closing_sync: str | None
 
     def can_send(self, text: str) -> bool:
         """True when *text* may go now without breaking the window or a sync rule."""

@@ -125,6 +125,13 @@
 #
 # Replies merged by a lost line end are split first (`okok`, `Resend: 5ok`).
 #
+# Closing a job
+#   S1  A job's last line is followed by closing_sync, a numbered M105, and the job
+#       ends on its ok. A last line lost with its Error and Resend garbled leaves
+#       only an ok, taken for the lost line's; nothing after it would ever name the
+#       gap, but the sync's line-number error does (R7 serves it). None when lines
+#       are not numbered or the firmware does not check the sequence (RepRapFirmware).
+#
 # Emergency: send_emergency() writes ahead of everything unwritten, ignoring the
 # window. M112 expects no ok; others (M108, M410, M876) become live internal lines.
 # Sent(text, line_number, resend) is emitted by data_to_send(), when the bytes are
@@ -142,7 +149,7 @@ from printers.protocol.events import (
     LinkFailed,
     Sent,
 )
-from printers.protocol.marlin_probe import PROBE_AFTER
+from printers.protocol.marlin_probe import PROBE, PROBE_AFTER
 from printers.protocol.marlin_recovery import Recovery
 from printers.protocol.marlin_replies import ReplyHandling
 from printers.protocol.marlin_responses import (
@@ -248,6 +255,15 @@ class MarlinProtocol(ReplyHandling):
     def bytes_in_flight(self) -> int:
         """Bytes charged to the firmware's RX buffer: live lines plus draining dead ones."""
         return self._window.bytes_in_flight
+
+    @property
+    def closing_sync(self) -> str | None:
+        """S1: the numbered line that closes a job, or None when it would prove nothing."""
+        numbered = self._checksums == "always" or (
+            self._checksums == "printing" and self.printing
+        )
+        prober = self._recovery.prober
+        return PROBE if numbered and prober.probing and not self.writing_file else None
 
     @property
     def writing_file(self) -> bool:

@@ -45,6 +45,8 @@ if TYPE_CHECKING:
     from printers.protocol.link import LinkProtocol
 
 S = CommandState
+#: Line.index of a closing sync: not one of the stream's lines, never counted.
+CLOSING = -1
 
 
 class StreamHost:
@@ -154,6 +156,9 @@ class StreamHost:
         if not isinstance(tag, tuple):
             return
         stream, line = tag
+        if line.index == CLOSING:
+            stream.sync = "done"
+            return
         stream.acked += 1
         if line.end_offset > stream.bytes_acked:
             stream.bytes_acked = line.end_offset
@@ -270,16 +275,19 @@ class StreamHost:
         if holding(stream):
             stream.move(S.WAIT_FOR_ACK)
             return True
-        if stream.eof:
-            stream.move(S.END if complete(stream) else S.WAIT_FOR_ACK)
-            if stream.finished:
-                self._finish(stream, "completed")
-            return stream.finished
         if stream.id not in self._pending:
-            line = next(stream.generate(), None)
-            if line is None:
-                stream.eof = True
-                return True
+            if stream.eof:
+                line = self._closing(stream)
+                if line is None:
+                    stream.move(S.END if complete(stream) else S.WAIT_FOR_ACK)
+                    if stream.finished:
+                        self._finish(stream, "completed")
+                    return stream.finished
+            else:
+                line = next(stream.generate(), None)
+                if line is None:
+                    stream.eof = True
+                    return True
             self._pending[stream.id] = line
         stream.move(S.READ_CURSOR)
         return True
@@ -302,6 +310,9 @@ class StreamHost:
             self.protocol.send(line.text, now, tag=(stream, line))
         except CommandRejected as error:
             self._fail(stream, f"line {line.index + 1}: {error}")
+            return True
+        if line.index == CLOSING:
+            stream.move(S.WAIT_FOR_ACK)
             return True
         stream.sent += 1
         if line.index >= stream.reached:
@@ -332,7 +343,7 @@ class StreamHost:
             self._finish(stream, "completed")
             return True
         line = self._pending.get(stream.id)
-        if stream.eof or (line is not None and not self._can_go(line)):
+        if (line is None and stream.eof) or (line and not self._can_go(line)):
             return False
         self._cleared = line
         stream.move(S.READY_TO_READ_CURSOR)
@@ -394,6 +405,14 @@ class StreamHost:
             self.script_queue.appendleft(control)
         elif control is not None:
             self.script_queue.append(control)
+
+    def _closing(self, stream: Stream) -> Line | None:
+        """The closing sync owed after a file stream's last line (S1 in marlin.py)."""
+        if stream.sync or not stream.type.is_stream or stream.printer_side is not None:
+            return None
+        text = self.protocol.closing_sync
+        stream.sync = "owed" if text else "done"
+        return Line(CLOSING, text) if text else None
 
     def _can_go(self, line: Line) -> bool:
         return line.text.startswith("[ESP") or self.protocol.can_send(line.text)

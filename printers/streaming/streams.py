@@ -22,9 +22,9 @@ LocalProtocolError, as h11's tables do):
     END                    (removed from its queue)
 
 WAIT_FOR_ACK means "the window is full" (or, at the end of the file, "waiting for the
-last acks"): with more than one command in flight, ESP3D's ping-pong wait becomes a
-wait for room. A pause or abort asked for while waiting takes effect at once, since no
-command is half-sent there.
+last acks", the closing sync's too): with more than one command in flight, ESP3D's
+ping-pong wait becomes a wait for room. A pause or abort asked for while waiting takes
+effect at once, since no command is half-sent there.
 """
 
 from __future__ import annotations
@@ -194,6 +194,9 @@ class Stream:
     done: int = 0
     reached: int = 0
     eof: bool = False
+    #: The closing sync after a file stream's last line (LinkProtocol.closing_sync):
+    #: "" not reached, "owed" sent and unanswered, "done" answered or not needed.
+    sync: str = ""
     outcome: str = ""
     message: str = ""
     #: The printer's side of the stream (its SD card); None for a plain stream.
@@ -221,5 +224,5 @@ class Stream:
 
     @property
     def drained(self) -> bool:
-        """Every line read, sent and acknowledged."""
-        return self.eof and self.acked >= self.sent
+        """Every line read, sent and acknowledged, and the closing sync answered."""
+        return self.eof and self.acked >= self.sent and self.sync != "owed"
