@@ -217,6 +217,8 @@ class MarlinProtocol(ReplyHandling):
         self._previous: Reply | None = None
         #: Between M20's `Begin file list` and its end: lines are file names.
         self._file_list = False
+        #: The line can_send last built (see _line_for).
+        self._asked: Line | None = None
         self._window = LineWindow(rx_buffer=rx_buffer, baud=baud)
         self._recovery = Recovery(
             self._window,
@@ -307,7 +309,21 @@ class MarlinProtocol(ReplyHandling):
         window = self._window
         if window.queued or window.rewinding:
             return False
-        return self._fits(self._new_line(text.strip(), None))
+        return self._fits(self._line_for(text.strip()))
+
+    def _line_for(self, text: str) -> Line:
+        """The Line for *text*: the one the last can_send built when it is the same
+        command (asked again each turn while the window is full, then sent), so it
+        is framed once."""
+        line = self._asked
+        if (
+            line is None
+            or line.text != text
+            or line.numbered is not self._numbering()
+            or line.m110 is not None
+        ):
+            line = self._asked = self._new_line(text, None)
+        return line
 
     def _fits(self, line: Line) -> bool:
         """W2, W3: room for *line* (or for the M110 that must go first, F2)."""
@@ -320,7 +336,11 @@ class MarlinProtocol(ReplyHandling):
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one command; Ack(tag) follows its ok. See F1-F4 for framing."""
         self._window.advance(now)
-        line = self._new_line(_validate(text), tag)
+        line = self._line_for(_validate(text))
+        self._asked = None  # the line is the window's now: never handed out again
+        line.tag = tag
+        if line.m110 is not None:
+            line.internal = tag is None  # as m110_line makes it
         self._window.frame(line)
         if len(line.wire) > self._max_length:
             raise CommandRejected(
@@ -380,14 +400,15 @@ class MarlinProtocol(ReplyHandling):
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
         recovery = self._recovery
-        candidates = (
-            self._window.drain_until,
+        first = self._window.drain_until
+        for deadline in (
             recovery.deadline(),
             recovery.error_deadline(),
             recovery.probe_deadline(),
-        )
-        deadlines = [d for d in candidates if d is not None]
-        return min(deadlines) if deadlines else None
+        ):
+            if deadline is not None and (first is None or deadline < first):
+                first = deadline
+        return first
 
     def handle_timeout(self, now: float) -> None:
         """End a finished drain; on a passed ack deadline apply T1."""
@@ -411,22 +432,26 @@ class MarlinProtocol(ReplyHandling):
 
     # -- framing and the window ------------------------------------------------------
 
-    def _new_line(self, text: str, tag: object) -> Line:
-        numbered = (
+    def _numbering(self) -> bool:
+        """F1: whether a command sent now is numbered."""
+        return (
             self._checksums == "always"
             or (self._checksums == "printing" and self.printing)
             or self.writing_file
         )
-        return new_line(text, tag, numbered=numbered)
+
+    def _new_line(self, text: str, tag: object) -> Line:
+        return new_line(text, tag, numbered=self._numbering())
 
     def _max_lines(self) -> int:
-        """W2: how many lines may be live at once in the flow mode in force."""
-        mode = self.flow_mode
-        if mode == "ping_pong":
+        """W2: how many lines may be live at once in the flow mode in force
+        (`flow_mode`, spelled out: this is asked several times a line)."""
+        flow = self._flow
+        if flow == "ping_pong" or not (self._advanced or flow == "buffered"):
             return 1
         if self._recovery.recovering:
             return 1 + self._recovery.settled_live()  # W4
-        return self._max_b + 1 if mode == "advanced" else self._bufsize
+        return self._max_b + 1 if self._advanced else self._bufsize
 
     def _pump(self) -> None:
         self._window.pump(self._max_lines())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from printers.protocol.checksum import checksum
 from printers.protocol.history import LineHistory
@@ -28,6 +28,7 @@ class Line:
     number: int | None = None
     resend: bool = False
     sent_at: float | None = None
+    _word: str = field(default="", repr=False)
 
     @property
     def cost(self) -> int:
@@ -35,7 +36,11 @@ class Line:
 
     @property
     def word(self) -> str:
-        return self.text.split(None, 1)[0].upper()
+        """The command word, upper case (`G1`, `M105`): asked every turn of the
+        loop of the oldest live line (T6), so worked out once."""
+        if not self._word:
+            self._word = self.text.split(None, 1)[0].upper()
+        return self._word
 
 
 def new_line(text: str, tag: object, *, numbered: bool) -> Line:
@@ -140,15 +145,22 @@ class LineWindow:
         """Fill in number and wire text, as the line would go out next.
 
         The same framing as checksum.format_line: the checksum of `N<n> <text>`
-        is that of `N<n> ` xor that of the text, and the text's is kept.
+        is that of `N<n> ` xor that of the text, and the text's is kept. A line
+        already framed with the number it would get now is left as it is: a line
+        is asked about several times on its way (can_send, send, the pump).
         """
-        if line.m110 is not None:
-            line.number = line.m110
-        elif line.numbered and not line.resend:
-            line.number = self._projected_number(line)
         if not line.numbered:
             line.wire = line.text
             return
+        if line.m110 is not None:
+            number = line.m110
+        elif line.resend:
+            number = line.number
+        else:
+            number = self._projected_number(line)
+        if line.wire and number == line.number:
+            return
+        line.number = number
         text = line.text
         known, value = self._checksummed
         if text is not known and text != known:
@@ -159,6 +171,8 @@ class LineWindow:
 
     def _projected_number(self, line: Line) -> int:
         n = 1 if self.need_m110 else self.next_n
+        if not self.queued:
+            return n
         for queued in self.queued:
             if queued is line:
                 break
