@@ -114,6 +114,11 @@ class Pacer:
         self.reply_bytes += 0.2 * (mean - self.reply_bytes)
         self._partial = len(data) - end - 1
 
+    def sampling(self, now: float) -> bool:
+        """P3: whether a read at *now* is a sample (`acknowledged` then learns from
+        it); asked first, so the bytes in flight are counted only for samples."""
+        return self.modelled and self.unsent(now) > SLACK_BYTES
+
     def acknowledged(self, bytes_in_flight: int, now: float) -> None:
         """P3: after replies were read, *bytes_in_flight* still wait for an answer."""
         unsent = self.unsent(now)

@@ -216,9 +216,10 @@ class StreamHost:
         while self.emergency_queue:
             self.protocol.send_emergency(self.emergency_queue.popleft(), now)
         self._cleared = None
+        handlers = _HANDLERS
         for _ in range(self._max_steps):
             stream = self.active_stream
-            if stream is None or not self._step(stream, now):
+            if stream is None or not handlers[stream.state](self, stream, now):
                 return
 
     def next_event(self) -> HostEvent | None:
@@ -227,8 +228,13 @@ class StreamHost:
     @property
     def active_stream(self) -> Stream | None:
         """Emergency > script queue > stream queue: the stream whose lines go next."""
-        current = self.current_stream
-        if current is not None and exclusive_now(current):
+        queue = self.stream_queue
+        current = queue[0] if queue else None
+        if (
+            current is not None
+            and current.printer_side is not None
+            and exclusive_now(current)
+        ):
             return current  # scripts wait: the firmware would write them to the file
         if self.script_queue:
             return self.script_queue[0]
@@ -270,9 +276,9 @@ class StreamHost:
         return True
 
     def _on_ready_to_read_cursor(self, stream: Stream, now: float) -> bool:
-        if self._take_request(stream):
+        if self._requested and self._take_request(stream):
             return True
-        if holding(stream):
+        if stream.printer_side is not None and holding(stream):
             stream.move(S.WAIT_FOR_ACK)
             return True
         if stream.id not in self._pending:
@@ -330,9 +336,9 @@ class StreamHost:
         return True
 
     def _on_wait_for_ack(self, stream: Stream, now: float) -> bool:
-        if self._take_request(stream):
+        if self._requested and self._take_request(stream):
             return True
-        if holding(stream):
+        if stream.printer_side is not None and holding(stream):
             if stream.acked < stream.sent:
                 return False
             assert stream.printer_side is not None

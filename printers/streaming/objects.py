@@ -178,8 +178,39 @@ class ObjectFilter:
             if isinstance(entry, ObjectMark):
                 yield from self._enter(entry.name)
                 continue
-            yield from self._line(entry)
+            head = entry.text[:3]
+            if (head == "G1 " or head == "G0 ") and self._plain():
+                self._follow(entry.text[3:])
+                yield entry
+            else:
+                yield from self._line(entry)
             self._prev = entry
+
+    def _plain(self) -> bool:
+        """Nothing skipped and nothing owed (no E lag, the feedrate sent): a move
+        goes as the file has it and only moves the positions (`_follow`)."""
+        return (
+            not self._lag
+            and self._head_f == self._file_f
+            and (self.active is None or self.active not in self.cancelled)
+        )
+
+    def _follow(self, args: str) -> None:
+        """`_move` for a plain move (see `_plain`), without what only skipping needs:
+        most lines of a file come here."""
+        given = _words(args)
+        if "E" in given:
+            value = given["E"]
+            self._file_e += value - self._file_e if self._absolute_e else value
+        if "F" in given:
+            self._file_f = self._head_f = _number(given["F"])
+        file, head = self._file, self._head
+        for axis in _XYZ:
+            if axis in given:
+                value = given[axis]
+                file[axis] = head[axis] = (
+                    value if self._absolute else file[axis] + value
+                )
 
     def _enter(self, name: str | None) -> Iterator[Line]:
         """An object starts (or, None, stops): leave a skipped part where the file is."""
@@ -324,4 +355,19 @@ def _klipper_label(text: str) -> str | None:
 
 
 def _words(args: str) -> dict[str, float]:
+    """The words of a command's arguments, by upper-case letter.
+
+    Most lines are words of a letter and a plain number, one space apart
+    (`X12.5 Y3 E.04`): read so without a regex; anything else (`X 12`, `X1Y2`,
+    an exponent, which G-code has not) goes through _WORD.
+    """
+    words = {}
+    for word in args.split(" "):
+        letter, value = word[:1], word[1:]
+        digits = (value[1:] if value[:1] in "+-" else value).replace(".", "", 1)
+        if not (word.isascii() and letter.isalpha() and digits.isdigit()):
+            break
+        words[letter.upper()] = float(value)
+    else:
+        return words
     return {letter.upper(): float(value) for letter, value in _WORD.findall(args)}

@@ -12,7 +12,6 @@ No threads: the only wait is the read timeout.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import select
 import time
@@ -110,6 +109,8 @@ class PrinterWorker(PortHandling, Reactions):
         self.prompts = HostPrompts(self.status)
         #: The printer's own SD card: listing, prints from it, uploads to it.
         self.sd = SdCardWatch(self)
+        #: Replies are shown to the card's watch (Marlin's M20, M27, M28...).
+        self.sd_replies = not printer.is_grbl
         #: An emergency DTR reset is under way: its reset banner keeps the halt.
         self.expect_reset = False
         self.last_stream_error = ""
@@ -219,15 +220,16 @@ class PrinterWorker(PortHandling, Reactions):
         except TransportClosed as error:
             self.port_lost(str(error))
             return
-        self.protocol.receive_data(data, now)
+        protocol = self.protocol
+        protocol.receive_data(data, now)
         self.handle_protocol_events(now)
         if data:
             self.link.received(len(data))
-            if self.pacer.modelled:
-                self.pacer.acknowledged(self.protocol.bytes_in_flight, now)
-        deadline = self.protocol.next_deadline()
+            if self.pacer.sampling(now):
+                self.pacer.acknowledged(protocol.bytes_in_flight, now)
+        deadline = protocol.next_deadline()
         if deadline is not None and now >= deadline:
-            self.protocol.handle_timeout(now)
+            protocol.handle_timeout(now)
             self.handle_protocol_events(now)
         self.pump(now)
         # Database work comes after the window was refilled, while those bytes travel.
@@ -235,8 +237,10 @@ class PrinterWorker(PortHandling, Reactions):
             self._housekeeping(now)
             self.pump(now)
         self.journal_progress()
-        with contextlib.suppress(DatabaseAway):
+        try:
             self.log.flush_if_due(now)
+        except DatabaseAway:  # the log holds its lines until it is back (lease.py)
+            return
 
     def journal_progress(self) -> None:
         """Append the job's acknowledged line to the journal (every tick that moved it)."""

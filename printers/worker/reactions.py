@@ -44,15 +44,19 @@ class Reactions:
     # -- protocol events ---------------------------------------------------------
 
     def handle_protocol_events(self: PrinterWorker, now: float) -> None:
-        while (event := self.protocol.next_event()) is not None:
-            if isinstance(event, ev.Sent):
-                self.log.add(event.text, LineKind.COMMAND)
-            elif isinstance(event, ev.Received):
-                self.log.add(event.text, event.kind)
-                if not self.printer.is_grbl:
+        # Every line brings three of these (Sent, Received, Ack): told apart by
+        # their exact type, the cheapest test, before the rarer kinds.
+        protocol, log = self.protocol, self.log
+        while (event := protocol.next_event()) is not None:
+            kind = type(event)
+            if kind is ev.Received:
+                log.add(event.text, event.kind)
+                if self.sd_replies:
                     self.sd.receive(event.text)
-            elif isinstance(event, ev.Ack):
+            elif kind is ev.Ack:
                 self.host.handle_ack(event.tag)
+            elif kind is ev.Sent:
+                log.add(event.text, LineKind.COMMAND)
             else:
                 self._on_protocol_event(event, now)
 

@@ -45,6 +45,8 @@ class Wakeups:
         #: Set by a notification psycopg read during a query of the worker's own.
         self._heard = False
         self._retry_at = 0.0
+        #: Only PostgreSQL notifies (asked once: the loop asks for fileno() every turn).
+        self._notifying = connections[alias].vendor == "postgresql"
 
     @property
     def listening(self) -> bool:
@@ -55,9 +57,11 @@ class Wakeups:
     def fileno(self) -> int | None:
         """The socket to wait on, LISTENing on the current connection first; None
         when there is nothing to wait on (not PostgreSQL, no connection yet)."""
+        if not self._notifying:
+            return None
         wrapper = connections[self.alias]
         raw = wrapper.connection
-        if wrapper.vendor != "postgresql" or raw is None or raw.closed:
+        if raw is None or raw.closed:
             return None
         if raw is not self._listening:
             now = time.monotonic()

@@ -292,3 +292,17 @@ def test_e_stays_the_files_for_any_mix_of_absolute_and_relative_e(parts, cancel_
         "only B's extrusion may be left out"
     )
     assert round(printed.other_e, 4) == round(whole.other_e, 4)
+
+
+_ARGUMENT_TEXT = st.text(alphabet="XYZEFIJRxe+-.0123456789 ßé*;", max_size=24)
+
+
+@settings(max_examples=500, deadline=None)
+@given(_ARGUMENT_TEXT)
+def test_the_quick_reading_of_words_agrees_with_the_pattern_on_any_text(args):
+    # Plain `X1.5 Y2` is read without the regex; any other text must come out
+    # exactly as the regex reads it (a sign twice, `X 5`, `X1Y2`, an ß, `1e3`).
+    from printers.streaming.objects import _WORD, _words
+
+    expected = {letter.upper(): float(value) for letter, value in _WORD.findall(args)}
+    assert _words(args) == expected
