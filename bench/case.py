@@ -50,7 +50,8 @@ def run_case(case: dict, data_dir: Path) -> dict:
         text = job_text(case)
         size = mean_wire_line(case, text)
         rtt = round_trip(case, sim, size)
-        return {**measure(case, sim, data_dir, text), **bound(case, rtt, size)}
+        run = measure_reference if case.get("host") == "reference" else measure
+        return {**run(case, sim, data_dir, text), **bound(case, rtt, size)}
     finally:
         sim.stop()
 
@@ -153,6 +154,18 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
     )
     worker.stop()
     return report(case, acked, sent[0], seconds, cpu)
+
+
+def measure_reference(case: dict, sim: object, data_dir: Path, text: str) -> dict:
+    """The same file through bench/reference_host.py instead of the worker."""
+    from bench import reference_host
+    from printers.sample_gcode import commands_of
+
+    done = reference_host.stream(
+        sim.link, commands_of(text), firmware=case["firmware"], mode=case["mode"],
+        baud=case["baud"], max_seconds=case["max_seconds"],
+    )  # fmt: skip
+    return report(case, done["lines"], done["bytes"], done["seconds"], done["cpu"])
 
 
 def _count_writes(worker: object) -> list[int]:

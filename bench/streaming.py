@@ -4,6 +4,9 @@ Cases: Marlin ping-pong, Marlin windowed (ADVANCED_OK, and the byte budget witho
 it) and GRBL character counting; 115200 and 250000 baud with 0, 4 and 16 ms latency
 each way, and unthrottled; then 8 printers at once at 250000. Each case runs in its
 own process (bench/case.py), one after another, so they do not share the CPU.
+Each case of the CPU goal (250000 baud, no latency) is run again straight after by
+the reference host (bench/reference_host.py, the least any Python host does a
+line), and the worker's CPU per 1,000 lines is printed beside it.
 Writes bench-results.json and prints a table plus the checks of the targets.
 """
 
@@ -69,17 +72,17 @@ def run(case: dict) -> dict:
 
 def table(results: list[dict]) -> str:
     head = (
-        f"{'case':44} {'lines':>6} {'s':>6} {'lines/s':>8} {'B/s':>6} {'rtt ms':>7} "
+        f"{'case':52} {'lines':>6} {'s':>6} {'lines/s':>8} {'B/s':>6} {'rtt ms':>7} "
         f"{'use':>6} {'bound':>6} {'whole':>6} {'cpu/1k':>7}"
     )
     rows = [head, "-" * len(head)]
     for r in results:
         if "error" in r:
-            rows.append(f"{r['name']:44} ERROR {r['error']}")
+            rows.append(f"{r['name']:52} ERROR {r['error']}")
             continue
         cells = [_cell(r.get(k)) for k in ("link_use", "bound", "bound_whole_lines")]
         rows.append(
-            f"{r['name']:44} {r['lines']:>6} {r['seconds']:>6.1f} {r['lines_per_s']:>8.1f} "
+            f"{r['name']:52} {r['lines']:>6} {r['seconds']:>6.1f} {r['lines_per_s']:>8.1f} "
             f"{r['bytes_per_s']:>6.0f} {r.get('rtt_ms', 0):>7.2f} {cells[0]:>6} "
             f"{cells[1]:>6} {cells[2]:>6} {r['cpu_s_per_1k_lines']:>7.3f}"
         )
@@ -138,6 +141,38 @@ def checks(results: list[dict]) -> list[str]:
     return lines + cpu_checks(results)
 
 
+def _has_reference(case: dict) -> bool:
+    """The CPU goal's cases: 250000 baud, no added latency, the segments file."""
+    return (
+        case["baud"] == CPU_GOAL_BAUD
+        and not case["latency_ms"]
+        and case["file"] == "segments"
+    )
+
+
+def reference_twin(case: dict) -> dict:
+    """*case* run by bench/reference_host.py: the least any Python host does."""
+    return {**case, "name": f"reference/{case['name']}", "host": "reference"}
+
+
+def reference_lines(results: list[dict]) -> list[str]:
+    """The worker's CPU per 1,000 lines beside the reference host's, case by case."""
+    worker = {r["name"]: r for r in results if "error" not in r}
+    lines = []
+    for r in results:
+        if r.get("group") != "reference" or "error" in r:
+            continue
+        mine = worker.get(r["name"].removeprefix("reference/"))
+        if mine is None or not r["cpu_s_per_1k_lines"]:
+            continue
+        ratio = mine["cpu_s_per_1k_lines"] / r["cpu_s_per_1k_lines"]
+        lines.append(
+            f"INFO {mine['name']}: cpu/1k {mine['cpu_s_per_1k_lines']:.3f}, "
+            f"{ratio:.1f} x the reference host's {r['cpu_s_per_1k_lines']:.3f}"
+        )
+    return lines
+
+
 def cpu_checks(results: list[dict]) -> list[str]:
     """Every case at 250000 baud without added latency, the 8 at once included:
     cpu/1k <= CPU_GOAL.
@@ -149,7 +184,11 @@ def cpu_checks(results: list[dict]) -> list[str]:
     """
     lines = []
     for r in results:
-        if "error" in r or r.get("baud") != CPU_GOAL_BAUD:
+        if (
+            "error" in r
+            or r.get("baud") != CPU_GOAL_BAUD
+            or r.get("group") == "reference"
+        ):
             continue
         cpu = r.get("cpu_s_per_1k_lines")
         if cpu is None:
@@ -158,7 +197,7 @@ def cpu_checks(results: list[dict]) -> list[str]:
         if r.get("group") in ("log", "live") or r.get("latency_ms"):
             verdict = "INFO " + ("within" if cpu <= CPU_GOAL else "above")
         lines.append(f"{verdict} {r['name']}: cpu/1k {cpu:.3f} <= {CPU_GOAL:.3f}")
-    return lines
+    return lines + reference_lines(results)
 
 
 def finish(results: list[dict], out: Path) -> int:
@@ -194,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
         result = run(case)
         results.append(result)
         print(f"{result['name']}: link use {result.get('link_use')}", flush=True)
+        if _has_reference(case):
+            results.append({**run(reference_twin(case)), "group": "reference"})
     if options.only:
         return finish(results, Path(options.out))
     results += logging_cost(options.max_seconds)
