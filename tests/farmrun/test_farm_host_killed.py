@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import pytest
 
-from printers.worker.journal import _parse
+from printers.worker.journal import Journal
 from tests.conftest import wait_for
 from tests.farmrig import checks
 
@@ -30,9 +30,9 @@ OFFLINE_SLACK = 2.5
 
 
 def _journal(farm, slug: str):
-    path = farm.shelves[VICTIM].folder / "journal" / f"printer-{farm.ids[slug]}.log"
-    lines = path.read_bytes().split(b"\n")[:-1]
-    return next(e for e in map(_parse, reversed(lines)) if e is not None)
+    entry = Journal(farm.ids[slug], farm.shelves[VICTIM].folder / "journal").last()
+    assert entry is not None, f"{slug}: nothing journaled"
+    return entry
 
 
 def _quiet(farm, slugs: list[str]) -> Callable[[], bool]:

@@ -9,23 +9,50 @@ from pathlib import Path
 import pytest
 
 from printers.sample_gcode import commands_of, segments
-from printers.worker.journal import Entry, Journal
+from printers.worker.journal import SLOT, Entry, Journal
 from tests.conftest import HOST_COMMANDS, wait_for
 from tests.hosts import Host
 
 pytestmark = pytest.mark.slow
 
 
-def test_journal_keeps_the_last_complete_entry_and_ignores_a_torn_line(tmp_path):
+def test_journal_keeps_the_newest_entry_in_a_file_of_two_slots(tmp_path):
+    journal = Journal(7, tmp_path)
+    journal.start_job()
+    for acked in range(10, 31):
+        journal.record(Entry(3, acked, acked + 4, acked * 20))
+    journal.record(Entry(3, 30, 34, 600))  # a repeat writes nothing
+
+    assert Journal(7, tmp_path).last() == Entry(3, 30, 34, 600)
+    assert journal.path.stat().st_size == 2 * SLOT  # written in place, never grown
+    journal.close()
+
+
+def test_a_torn_slot_leaves_the_entry_before_it(tmp_path):
     journal = Journal(7, tmp_path)
     journal.start_job()
     journal.record(Entry(3, 10, 14, 200))
     journal.record(Entry(3, 12, 16, 240))
     journal.close()
-    with journal.path.open("a") as file:
-        file.write("3 99 1")  # the process died in the middle of a write
+    data = bytearray(journal.path.read_bytes())
+    newest = data.index(b"3 12 16 240 ")
+    # The process died in the middle of storing the newest entry: part of the
+    # slot holds the new digits, the rest the old.
+    data[newest + 2 : newest + 4] = b"99"
+    journal.path.write_bytes(bytes(data))
 
-    assert Journal(7, tmp_path).last() == Entry(3, 12, 16, 240)
+    assert Journal(7, tmp_path).last() == Entry(3, 10, 14, 200)
+
+
+def test_a_journal_of_the_earlier_format_gives_its_last_whole_line(tmp_path):
+    journal = Journal(7, tmp_path)
+    journal.path.write_text("3 10 14 200\n3 12 16 240\n3 99 1")
+
+    assert journal.last() == Entry(3, 12, 16, 240)
+    journal.start_job()  # the next job writes the new format over it
+    journal.record(Entry(4, 1, 2, 30))
+    assert Journal(7, tmp_path).last() == Entry(4, 1, 2, 30)
+    journal.close()
 
 
 def test_sigkilled_worker_job_is_interrupted_at_exactly_the_last_acked_line(
