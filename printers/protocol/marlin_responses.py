@@ -163,8 +163,10 @@ def split_merged(line: str) -> list[str]:
     Only unambiguous joins are split: `okok`, `okResend: 5`, `ok` glued after a
     number (`Resend: 5ok`), and `Resend:` glued after a line error's number.
     """
-    parts: list[str] = []
     text = line.strip()
+    if text.startswith("ok "):  # most replies: a space after the ok, so none of below
+        return [text]
+    parts: list[str] = []
     while text.startswith("ok") and text[2:].startswith(_AFTER_OK):
         parts.append("ok")
         text = text[2:]

@@ -52,7 +52,8 @@ def test_p2a_the_margin_follows_the_workers_turnaround_within_bounds() -> None:
             now = due + 0.0015
         else:
             now += 0.01
-    assert 0.0025 < pacer.margin <= pacing.MAX_MARGIN
+    assert pacer.margin == pytest.approx(pacing.MARGIN_FACTOR * 0.0015, rel=0.05)
+    assert pacer.margin <= pacing.MAX_MARGIN
     quick = Pacer(BAUD)
     assert quick.margin >= pacing.MIN_MARGIN
 
