@@ -22,6 +22,8 @@ from printers.models import Printer
 from printhost.models import ApiKey, PrinterRole, Role
 
 if TYPE_CHECKING:
+    from collections.abc import Collection
+
     from django.contrib.auth.models import AbstractBaseUser
     from django.http import HttpRequest
 
@@ -78,12 +80,16 @@ def find_key(raw: str) -> ApiKey | None:
     if not raw.startswith(KEY_START) or len(raw) < len(KEY_START) + _PREFIX_LEN + 1:
         return None
     prefix = raw[len(KEY_START) : len(KEY_START) + _PREFIX_LEN]
-    key = (
-        ApiKey.objects.select_related("user", "printer")
-        .filter(prefix=prefix, revoked_at__isnull=True)
-        .first()
-    )
-    if key is None or not hmac.compare_digest(key.key_hash, hash_key(raw)):
+    # Every API call starts here: one row by its unique prefix, with its user and
+    # no ordering (`get`, not `first`). The key's printer is read only where it is
+    # named (a bound key's uploads and refusals), not joined into every call.
+    try:
+        key = ApiKey.objects.select_related("user").get(
+            prefix=prefix, revoked_at__isnull=True
+        )
+    except ApiKey.DoesNotExist:
+        return None
+    if not hmac.compare_digest(key.key_hash, hash_key(raw)):
         return None
     if not key.user.is_active:
         return None
@@ -109,23 +115,56 @@ def key_from_request(request: HttpRequest) -> str | None:
     return None
 
 
+@dataclass(frozen=True, slots=True)
+class Grants:
+    """The roles one user holds, read once: on every printer, and on single ones.
+
+    A list of printers asks each one's role from the same read (one query, not one
+    a printer). Read afresh for each question that must see changes (a live
+    connection's periodic re-check), never kept on a long-lived `Caller`.
+    """
+
+    everywhere: int | None = None
+    on_printer: dict[int, int] = field(default_factory=dict)
+    superuser: bool = False
+    staff: bool = False
+
+    def on(self, printer: Printer | None) -> int | None:
+        """The highest role on *printer* (None = on every printer)."""
+        if self.superuser:
+            return Role.ADMIN
+        held = [self.everywhere]
+        if printer is not None:
+            held.append(self.on_printer.get(printer.pk))
+        best = max((r for r in held if r is not None), default=None)
+        if best is None and self.staff:
+            return Role.VIEWER
+        return best
+
+
+def grants_of(user: AbstractBaseUser | AnonymousUser) -> Grants | None:
+    """What *user* holds (None: not logged in or inactive); a superuser costs no
+    query, anyone else one."""
+    if not user.is_authenticated or not user.is_active:
+        return None
+    if user.is_superuser:
+        return Grants(superuser=True)
+    everywhere, on_printer = None, {}
+    rows = PrinterRole.objects.filter(user=user).values_list("printer_id", "role")
+    for printer_id, role in rows:
+        if printer_id is None:
+            everywhere = role
+        else:
+            on_printer[printer_id] = role
+    return Grants(everywhere, on_printer, staff=user.is_staff)
+
+
 def role_of(
     user: AbstractBaseUser | AnonymousUser, printer: Printer | None
 ) -> int | None:
     """The highest role *user* holds on *printer* (None = on every printer)."""
-    if not user.is_authenticated or not user.is_active:
-        return None
-    if user.is_superuser:
-        return Role.ADMIN
-    roles = PrinterRole.objects.filter(user=user)
-    if printer is None:
-        roles = roles.filter(printer__isnull=True)
-    else:
-        roles = roles.filter(printer__isnull=True) | roles.filter(printer=printer)
-    best = max((r.role for r in roles), default=None)
-    if best is None and user.is_staff:
-        return Role.VIEWER
-    return best
+    grants = grants_of(user)
+    return None if grants is None else grants.on(printer)
 
 
 def highest_role(user: AbstractBaseUser | AnonymousUser) -> int | None:
@@ -170,10 +209,17 @@ class Caller:
 
     def role(self, printer: Printer | None) -> int | None:
         """The user's role on *printer*, within what the key allows (printer, role)."""
-        bound = self.key.printer_id if self.key is not None else None
-        if printer is not None and bound not in (None, printer.pk):
+        if not self._reaches(printer):
             return None
-        held = role_of(self.user, printer)
+        return self._capped(role_of(self.user, printer))
+
+    def _reaches(self, printer: Printer | None) -> bool:
+        """The key is bound to no printer, or to this one."""
+        bound = self.key.printer_id if self.key is not None else None
+        return printer is None or bound in (None, printer.pk)
+
+    def _capped(self, held: int | None) -> int | None:
+        """*held*, at most the key's role."""
         cap = self.key.role if self.key is not None else None
         if held is None or cap is None:
             return held
@@ -225,12 +271,27 @@ class Caller:
             )
         self.require(None, role)
 
-    def printers(self, role: int = Role.VIEWER) -> list[Printer]:
-        """The printers this caller may see (or act on at *role*)."""
-        found = Printer.objects.all()
+    def printers(
+        self, role: int = Role.VIEWER, *, fields: Collection[str] = ()
+    ) -> list[Printer]:
+        """The printers this caller may see (or act on at *role*): two queries
+        however many printers there are (the user's roles are read once).
+
+        *fields*: read only these columns (any other is read on first use, a query
+        each printer).
+        """
+        grants = grants_of(self.user)
+        if grants is None:
+            return []
+        found = Printer.objects.only(*fields) if fields else Printer.objects.all()
         if self.bound_printer_id is not None:
             found = found.filter(pk=self.bound_printer_id)
-        return [p for p in found if self.can(p, role)]
+        allowed = []
+        for printer in found:
+            held = self._capped(grants.on(printer))
+            if held is not None and held >= role:
+                allowed.append(printer)
+        return allowed
 
     def default_printer(self, role: int = Role.OPERATOR) -> Printer | None:
         """Where an upload without a slug goes: the key's printer, else the user's default."""

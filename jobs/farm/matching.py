@@ -38,6 +38,8 @@ from printers.models import Printer
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
 
+    from django.db.models import QuerySet
+
 #: Job states that keep a printer from taking a farm job.
 OWN_WORK = (Job.State.QUEUED, Job.State.PRINTING, Job.State.PAUSED)
 #: Printers named in a "busy" reason before "and n more".
@@ -45,17 +47,34 @@ NAMED = 4
 _NEVER = datetime.min.replace(tzinfo=UTC)
 
 
-def farm_printers() -> list[PrinterFacts]:
-    """Every printer the farm may use, with what keeps it from a job now (if any)."""
+def printer_rows() -> QuerySet[Printer]:
+    """Printers by slug with their host and what the farm reads of their jobs:
+    `has_work` (one of their own queued or running) and `last_end` (when their last
+    job finished)."""
     own_work = Job.objects.filter(printer=OuterRef("pk"), state__in=OWN_WORK)
-    rows = (
-        Printer.objects.filter(enabled=True, farm=True)
-        .exclude(firmware=Printer.Firmware.GRBL)
-        .select_related("worker_host")
+    return (
+        Printer.objects.select_related("worker_host")
         .annotate(has_work=Exists(own_work), last_end=Max("jobs__finished_at"))
         .order_by("slug")
     )
-    return [facts_of(p, has_work=p.has_work, last_end=p.last_end) for p in rows]
+
+
+def takes_farm_jobs(printer: Printer) -> bool:
+    """The printer is one the farm may use (enabled, `farm`, not GRBL)."""
+    return printer.enabled and printer.farm and not printer.is_grbl
+
+
+def farm_printers(rows: Iterable[Printer] | None = None) -> list[PrinterFacts]:
+    """Every printer the farm may use, with what keeps it from a job now (if any):
+    read, or picked from *rows* (`printer_rows()` read once for a whole view)."""
+    if rows is None:
+        rows = printer_rows().filter(enabled=True, farm=True)
+        rows = rows.exclude(firmware=Printer.Firmware.GRBL)
+    return [
+        facts_of(p, has_work=p.has_work, last_end=p.last_end)
+        for p in rows
+        if takes_farm_jobs(p)
+    ]
 
 
 def facts_of(

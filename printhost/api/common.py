@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja.errors import AuthenticationError, HttpError, ValidationError
@@ -24,6 +24,9 @@ from jobs.sdcard import BadCardName, SdRefused
 from jobs.services import ChecksumMismatch, FileRemoved
 from printers.models import Printer
 from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_request
+
+if TYPE_CHECKING:
+    from collections.abc import Collection
 
 log = logging.getLogger("printhost.api")
 
@@ -85,12 +88,25 @@ def refuse_acting_get(request: HttpRequest, what: str) -> None:
         )
 
 
-def printer_for(request: HttpRequest, slug: str, role: int) -> Printer:
-    """The printer *slug*, if the caller holds *role* on it (404 / 401 / 403)."""
+def printer_for(
+    request: HttpRequest,
+    slug: str,
+    role: int,
+    *,
+    fields: Collection[str] = (),
+) -> Printer:
+    """The printer *slug*, if the caller holds *role* on it (404 / 401 / 403).
+
+    *fields*: read only these columns (a view polled often that reads few of a
+    printer's sixty; any other is read on first use, a query each).
+    """
     caller = caller_of(request)
-    printer = Printer.objects.filter(slug=slug).first()
-    if printer is None:
-        raise HttpError(404, f"Unknown printer {slug!r}")
+    found = Printer.objects.only(*fields) if fields else Printer.objects.all()
+    try:
+        # `get`: the slug is unique, so no ordering (`first` would sort by name).
+        printer = found.get(slug=slug)
+    except Printer.DoesNotExist:
+        raise HttpError(404, f"Unknown printer {slug!r}") from None
     caller.require(printer, role)
     return printer
 

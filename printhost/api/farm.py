@@ -27,13 +27,18 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from django.core.exceptions import ValidationError as ModelValidationError
-from django.db.models import Exists, OuterRef
 from django.http import HttpRequest, JsonResponse  # noqa: TC002 (ninja reads hints)
 from django.utils import timezone
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs.farm.matching import OWN_WORK, facts_of, farm_printers, plan, waiting_jobs
+from jobs.farm.matching import (
+    facts_of,
+    farm_printers,
+    plan,
+    printer_rows,
+    waiting_jobs,
+)
 from jobs.farm.models import FarmJob
 from jobs.farm.requirements import BadRequirement, parse_nozzle, parse_requirements
 from jobs.farm.storing import (
@@ -44,7 +49,6 @@ from jobs.farm.storing import (
     parse_priority,
     store_farm_upload,
 )
-from jobs.models import Job
 from printers.hosts import WorkerHost
 from printers.models import Printer
 from printhost.api.common import caller_of, envelope, json_body, printer_for
@@ -52,8 +56,11 @@ from printhost.audit import record
 from printhost.models import Role
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from django.core.files.uploadedfile import UploadedFile
 
+    from jobs.farm.requirements import PrinterFacts
     from printhost.access import Caller
 
 router = Router(tags=["Farm"])
@@ -129,14 +136,17 @@ def store_farm_request(
 # -- the queue -------------------------------------------------------------------------
 
 
-def queue_entries() -> list[dict[str, Any]]:
-    """Waiting jobs in queue order with their "would go to", then the latest others."""
+def queue_entries(printers: list[PrinterFacts] | None = None) -> list[dict[str, Any]]:
+    """Waiting jobs in queue order with their "would go to" among the farm's
+    *printers* (read here unless given), then the latest others."""
     waiting = waiting_jobs()
     entries = [
         farm_job.as_dict(
             would_go_to=decision.printer.slug if decision.printer else None
         )
-        for farm_job, decision in plan(waiting, farm_printers())
+        for farm_job, decision in plan(
+            waiting, farm_printers() if printers is None else printers
+        )
     ]
     recent = (
         FarmJob.objects.exclude(state=FarmJob.State.WAITING)
@@ -147,14 +157,9 @@ def queue_entries() -> list[dict[str, Any]]:
     return entries + [farm_job.as_dict() for farm_job in recent]
 
 
-def printer_entries() -> list[dict[str, Any]]:
-    """Every printer with what the farm reads of it (farm or not)."""
-    own_work = Job.objects.filter(printer=OuterRef("pk"), state__in=OWN_WORK)
-    rows = (
-        Printer.objects.select_related("worker_host")
-        .annotate(has_work=Exists(own_work))
-        .order_by("slug")
-    )
+def printer_entries(rows: Iterable[Printer]) -> list[dict[str, Any]]:
+    """Every printer of *rows* (`printer_rows()`) with what the farm reads of it
+    (farm or not)."""
     out = []
     for printer in rows:
         facts = facts_of(printer, has_work=printer.has_work)
@@ -191,10 +196,12 @@ def loaded_of(printer: Printer) -> dict[str, Any]:
 
 
 def overview() -> dict[str, Any]:
-    """The whole farm view: queue, printers, hosts."""
+    """The whole farm view: queue, printers, hosts (four queries however many
+    printers and jobs: the printers are read once for the queue and the list)."""
+    rows = list(printer_rows())
     return {
-        "jobs": queue_entries(),
-        "printers": printer_entries(),
+        "jobs": queue_entries(farm_printers(rows)),
+        "printers": printer_entries(rows),
         "hosts": [host.as_dict() for host in WorkerHost.objects.all()],
     }
 

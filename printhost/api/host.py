@@ -14,7 +14,7 @@ from jobs.models import Job
 from printers.models import Printer, QueuedCommand
 from printhost import audit
 from printhost.api.common import caller_of, envelope, printer_for
-from printhost.api.shapes import printer_state
+from printhost.api.shapes import STATE_FIELDS, printer_state
 from printhost.clients import run_action
 from printhost.models import Role
 
@@ -24,7 +24,8 @@ router = Router(tags=["printer (host extras)"])
 @router.get("/printer/state/{slug}", summary="Printer state, job, queue")
 def state(request: HttpRequest, slug: str) -> HttpResponse:
     """State, temperatures, position, the running job with progress and ETA, the queue."""
-    return envelope(printer_state(printer_for(request, slug, Role.VIEWER)))
+    printer = printer_for(request, slug, Role.VIEWER, fields=STATE_FIELDS)
+    return envelope(printer_state(printer))
 
 
 @router.post("/printer/connect/{slug}", summary="Connect (or reconnect) the printer")

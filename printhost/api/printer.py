@@ -49,7 +49,7 @@ from printhost.api.common import (
     refuse_acting_get,
     request_params,
 )
-from printhost.api.shapes import printer_entries, printer_state
+from printhost.api.shapes import ENTRY_FIELDS, printer_entries, printer_state
 from printhost.api.storing import (
     autostart_mode,
     chunked_upload,
@@ -78,7 +78,7 @@ RESPONSE_PAGE = 1000
 @router.get("/printer/list", summary="Printers the caller may view")
 def printer_list(request: HttpRequest) -> HttpResponse:
     """The seed's printer list. No `error` key on success (PrusaSlicer needs that)."""
-    printers = caller_of(request).printers(Role.VIEWER)
+    printers = caller_of(request).printers(Role.VIEWER, fields=ENTRY_FIELDS)
     return JsonResponse({"data": printer_entries(printers)})
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from jobs.models import ACTIVE_STATES, Job, running_job
+from jobs.models import ACTIVE_STATES, Job
 from printers.models import Printer
 from printhost.clients import ONLINE_STATES
 
@@ -36,6 +36,15 @@ def running_job_states(printer_ids: Iterable[int]) -> dict[int, str]:
     return states
 
 
+#: The printer columns `printer_entries` reads (a list polled often reads only these).
+ENTRY_FIELDS = ("name", "slug", "state", "enabled")
+#: The printer columns `printer_state` reads (with those of its jobs' `as_dict`).
+STATE_FIELDS = (
+    "name", "slug", "state", "state_message", "firmware", "firmware_name",
+    "temperatures", "machine_status",
+)  # fmt: skip
+
+
 def printer_entries(printers: Iterable[Printer]) -> list[dict[str, Any]]:
     """The seed's list entry of each printer, plus `state` and `active` (enabled)."""
     printers = list(printers)
@@ -53,15 +62,34 @@ def printer_entries(printers: Iterable[Printer]) -> list[dict[str, Any]]:
     ]
 
 
+def running_and_queued(printer: Printer) -> tuple[Job | None, list[Job]]:
+    """The printer's running job (as `jobs.models.running_job` finds it) and its
+    queue in order, in one query: hosts ask a printer's state every second or two.
+
+    Each job's `printer` is *printer* itself, not a copy read again with it.
+    """
+    rows = list(
+        Job.objects.filter(
+            printer=printer, state__in=[*ACTIVE_STATES, Job.State.QUEUED]
+        )
+        .select_related("analysis")
+        .defer("analysis__result")
+        .order_by("started_at", "pk")
+    )
+    for job in rows:
+        job.printer = printer
+    active = next((job for job in rows if job.state in ACTIVE_STATES), None)
+    queue = sorted(
+        (job for job in rows if job.state == Job.State.QUEUED),
+        key=lambda job: (job.position, job.pk),  # Job's own ordering
+    )
+    return active, queue
+
+
 def printer_state(printer: Printer) -> dict[str, Any]:
     """Everything a host shows about a printer at a glance."""
-    active = running_job(printer.pk)
+    active, queue = running_and_queued(printer)
     status = printer.machine_status or {}
-    queue = (
-        Job.objects.filter(printer=printer, state=Job.State.QUEUED)
-        .select_related("printer", "analysis")
-        .defer("analysis__result")
-    )
     return {
         "slug": printer.slug,
         "name": printer.name,
