@@ -16,9 +16,11 @@ real speed), printing real slicer files (tests/farmrig). In one run, side by sid
    its jobs' files). Per job: its time against the baseline's (the slowdown) and
    how many printers were printing meanwhile; per printer: its worker's CPU
    (% of a core, from /proc/<pid>/stat) and CPU per 1,000 lines; the web's p95.
-   The clients stand for browsers on other computers: their thread runs at nice
-   10 (tests/farmrig/clients.py), as runhost runs daphne and Celery nicer than
-   the printer workers (printers/supervisor.py).
+   The clients stand for browsers on other computers: they run in processes of
+   their own (the watchers in two, the API load in one) at nice 10
+   (tests/farmrig/crowd.py), as runhost runs daphne and Celery nicer than the
+   printer workers (printers/supervisor.py); the rate the load really reached is
+   reported beside the one asked for.
 Both phases say where the CPU went (cores per kind of process).
 4. The faults of tests/farmrun at full size (PostgreSQL away, Redis away, a
    worker host SIGKILLed), one fresh farm each; a dispatcher killed mid-claim is
@@ -49,7 +51,8 @@ import httpx
 from bench.farm_report import PRINTERS_GOAL, capacity_line, judge, summary
 from tests.conftest import wait_for
 from tests.farmrig import checks
-from tests.farmrig.clients import ApiLoad, Crowd, Watcher
+from tests.farmrig.clients import ApiLoad, Watcher
+from tests.farmrig.crowd import Crowd
 from tests.farmrig.fleet import JobSpec, extent, meets
 from tests.farmrig.processes import cpu_by_kind, cpu_seconds, shares
 from tests.farmrig.rig import Farm, FarmConfig
@@ -196,16 +199,20 @@ def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) 
     load = ApiLoad(farm.control.url, farm.operator, paths, options.rate)
     crowd = Crowd(watchers, farm.operator, load)
     crowd.start()
-    wait_for(crowd.connected, 60, "the websocket clients to connect")
-    cpu = CpuWatch(farm)
-    kinds, began = cpu_by_kind(), time.monotonic()
-    before = set(farm.uploaded)
-    farm.upload()
-    farm.tend(lambda: cpu.sample() or farm.all_done(), 3600, "every farm job to run")
-    seconds = time.monotonic() - began
-    out: dict[str, Any] = {"farm_seconds": round(seconds, 1)}
-    out["cpu_cores"] = shares(kinds, cpu_by_kind(), seconds)
-    crowd.stop()
+    try:
+        wait_for(crowd.connected, 60, "the websocket clients to connect")
+        cpu = CpuWatch(farm)
+        kinds, began = cpu_by_kind(), time.monotonic()
+        before = set(farm.uploaded)
+        farm.upload()
+        farm.tend(
+            lambda: cpu.sample() or farm.all_done(), 3600, "every farm job to run"
+        )
+        seconds = time.monotonic() - began
+        out: dict[str, Any] = {"farm_seconds": round(seconds, 1)}
+        out["cpu_cores"] = shares(kinds, cpu_by_kind(), seconds)
+    finally:
+        crowd.stop()
     out["checks"] = run_checks(farm)
     mine = set(farm.uploaded) - before
     out["jobs"] = [j for j in job_figures(farm, base) if j["farm_job"] in mine]
@@ -216,6 +223,9 @@ def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) 
         "client_reconnects": sum(w.reconnects for w in watchers),
         "lines_received": received,
         "api_rate": options.rate,
+        "api_rate_achieved": _round(load.achieved_rate(), 2),
+        "api_issued": load.issued,
+        "api_sent": load.sent,
         "api_requests": len(load.latencies) + load.errors,
         "api_errors": load.errors,
         "api_p95_ms": None if load.p95() is None else round(load.p95() * 1000, 1),
@@ -226,6 +236,10 @@ def farm_phase(farm: Farm, base: dict[str, float], options: argparse.Namespace) 
         "server": server_latency(farm),
     }
     return out
+
+
+def _round(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
 
 
 def _p95(values: list[float]) -> float:

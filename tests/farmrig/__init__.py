@@ -8,4 +8,6 @@
 - `checks.py`: what a run must show (every job once, on a matching printer, each
   simulator's record its jobs' files).
 - `clients.py`: websocket clients that catch up by last id, and an API load.
+- `crowd.py`: `Crowd`: those clients in processes of their own at nice 10, their
+  results brought back to the harness.
 """

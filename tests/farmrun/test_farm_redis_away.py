@@ -13,7 +13,8 @@ import pytest
 
 from tests.conftest import wait_for
 from tests.farmrig import checks
-from tests.farmrig.clients import Crowd, Watcher
+from tests.farmrig.clients import Watcher
+from tests.farmrig.crowd import Crowd
 
 pytestmark = [pytest.mark.slow, pytest.mark.services]
 
