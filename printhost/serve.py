@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import sys
 import tempfile
 from importlib.metadata import version
@@ -199,8 +200,14 @@ def check_internals(internals: tuple[startup.Internal, ...] = INTERNALS) -> None
         sys.exit(f"printhost: {refusal}")
 
 
+#: Connections the web server keeps to PostgreSQL (`PRINTHOST_DB_POOL_SIZE` in
+#: printhost/settings.py): it answers each request on a thread of its own.
+WEB_POOL_SIZE = 20
+
+
 def main() -> None:
     check_internals()
+    os.environ.setdefault("PRINTHOST_DB_POOL_SIZE", str(WEB_POOL_SIZE))
     # daphne's Server.run() builds its HTTP factory by this module-level name.
     daphne.server.HTTPFactory = RawBodyHTTPFactory
     SpoolingCommandLine.entrypoint()

@@ -105,11 +105,23 @@ DATABASES = {
     )
 }
 if DATABASES["default"]["ENGINE"] == "django.db.backends.postgresql":
+    _pg_options = DATABASES["default"].setdefault("OPTIONS", {})
     # A database that went away must fail a connection in seconds, not hang a
     # worker's loop (libpq waits forever by default).
-    DATABASES["default"].setdefault("OPTIONS", {}).setdefault(
+    _pg_options.setdefault(
         "connect_timeout", int(env_positive("PRINTHOST_DB_CONNECT_TIMEOUT", 3))
     )
+    # printhost's queries are all short: PostgreSQL's JIT compiles a plan for
+    # hundreds of milliseconds when a table's statistics are stale (seen on the
+    # farm view's printer list), and never pays that back here.
+    _pg_options.setdefault("options", "-c jit=off")
+    # The web server (printhost.serve sets it) answers each request on a thread of
+    # its own, which would open a connection, and PostgreSQL fork a backend, for
+    # each one: a pool of this many connections is kept instead. 0 (the default,
+    # workers and Celery) is one connection a thread, as before.
+    _pool = int(env_positive("PRINTHOST_DB_POOL_SIZE", 0, zero=True))
+    if _pool:
+        _pg_options["pool"] = {"min_size": 1, "max_size": _pool, "timeout": 10}
 if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
     DATABASES["default"]["OPTIONS"] = {
         "timeout": 20,
