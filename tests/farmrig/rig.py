@@ -325,10 +325,11 @@ print(json.dumps(keys))
         if self._autovacuum:
             return
         tables = {t for (t,) in self.query("SELECT tablename FROM pg_tables")}
+        self.query("SELECT 1")  # the harness's own connection, open
         for table in HOT_TABLES:
             if table in tables:
-                self.query(f"VACUUM (ANALYZE) {table}")
-        self.query("ANALYZE")
+                self._db.execute(f"VACUUM (ANALYZE) {table}")
+        self._db.execute("ANALYZE")
 
     # -- watching -----------------------------------------------------------------
 
