@@ -319,7 +319,7 @@ class MarlinProtocol(ReplyHandling):
         if (
             line is None
             or line.text != text
-            or line.numbered is not self._numbering()
+            or line.numbered != self._numbering()
             or line.m110 is not None
         ):
             line = self._asked = self._new_line(text, None)

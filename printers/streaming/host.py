@@ -216,6 +216,8 @@ class StreamHost:
         while self.emergency_queue:
             self.protocol.send_emergency(self.emergency_queue.popleft(), now)
         self._cleared = None
+        # Each step advances the stream by one command state (`_on_<state>`);
+        # False when it has to wait.
         handlers = _HANDLERS
         for _ in range(self._max_steps):
             stream = self.active_stream
@@ -265,10 +267,6 @@ class StreamHost:
         return self.queue_state is QueueState.PROCESSING
 
     # -- one step of the command state machine --------------------------------
-
-    def _step(self, stream: Stream, now: float) -> bool:
-        """Advance *stream* by one state; False when it has to wait."""
-        return _HANDLERS[stream.state](self, stream, now)
 
     def _on_start(self, stream: Stream, now: float) -> bool:
         stream.move(S.READY_TO_READ_CURSOR)
