@@ -30,7 +30,7 @@ import time
 import uuid
 from contextlib import contextmanager
 from datetime import timedelta
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.db import (
@@ -258,17 +258,26 @@ class Lease:
         """The row names this worker, unexpired: one indexed read."""
         return self._on_my_row("SELECT 1 FROM {table}") == 1
 
-    def _seen(self) -> int:
+    def _seen(self, columns: dict[str, Any] | None = None) -> int:
         """Within a transaction: note the worker was seen, on its row only while it
-        still holds the lease, and lock the row (1) or find it is not (0)."""
-        return self._on_my_row("UPDATE {table} SET worker_seen_at = %s", stamp=True)
+        still holds the lease, and lock the row (1) or find it is not (0). The row's
+        *columns* (field name: value) are written by the same statement."""
+        db = connections[Printer.objects.db]
+        head, values = "UPDATE {table} SET worker_seen_at = %s", []
+        for name, value in (columns or {}).items():
+            field = Printer._meta.get_field(name)
+            head += f", {db.ops.quote_name(field.column)} = %s"
+            values.append(field.get_db_prep_save(value, connection=db))
+        return self._on_my_row(head, stamp=True, values=values)
 
-    def _on_my_row(self, head: str, *, stamp: bool = False) -> int:
+    def _on_my_row(
+        self, head: str, *, stamp: bool = False, values: list[Any] | None = None
+    ) -> int:
         """Run *head* (a SELECT or UPDATE of `{table}`; with *stamp*, its first `%s`
-        is now) on the printer's row while it names this worker, unexpired; how
-        many rows it found. Plain SQL: an idle worker checks every second and every
-        batch of the log writes, and the ORM's query cost several times the
-        database's answer (1.6 ms against 0.1 ms here)."""
+        is now, and the next ones *values*) on the printer's row while it names
+        this worker, unexpired; how many rows it found. Plain SQL: an idle worker
+        checks every second and every batch of the log writes, and the ORM's query
+        cost several times the database's answer (1.6 ms against 0.1 ms here)."""
         db = connections[Printer.objects.db]
         table = db.ops.quote_name(Printer._meta.db_table)
         now = db.ops.adapt_datetimefield_value(timezone.now())
@@ -276,15 +285,17 @@ class Lease:
             head.format(table=table)
             + " WHERE id = %s AND lease_owner = %s AND lease_expires_at > %s"
         )
-        params = [now] if stamp else []
+        params = [now, *(values or [])] if stamp else []
         with db.cursor() as cursor:
             cursor.execute(sql, [*params, self.printer_id, self.owner, now])
             return cursor.rowcount if stamp else len(cursor.fetchall())
 
     @contextmanager
-    def held(self) -> Iterator[None]:
+    def held(self, **columns: Any) -> Iterator[None]:
         """A transaction that commits only while this worker holds the lease.
 
+        *columns*: fields of the printer's row written by the lease's own check
+        (one statement: the status a worker saves every second).
         DatabaseAway (nothing written) while the database does not answer; the
         first call after that renews the lease before it writes.
         """
@@ -293,15 +304,15 @@ class Lease:
         if self.away_since is not None:
             self.take(time.monotonic())  # DatabaseAway until it answers again
         try:
-            with self._written():
+            with self._written(columns):
                 yield
         except UNREACHABLE as error:
             raise self._went_away(error) from None
 
     @contextmanager
-    def _written(self) -> Iterator[None]:
+    def _written(self, columns: dict[str, Any]) -> Iterator[None]:
         with transaction.atomic():
-            if self._seen() != 1:
+            if self._seen(columns) != 1:
                 self.lost = True
                 raise LeaseLost(
                     f"printer {self.printer_id}: lease lost "

@@ -57,6 +57,11 @@ logger = logging.getLogger("printhost.worker")
 
 #: Job progress is saved at most this often (s).
 PROGRESS_SECONDS = 1.0
+#: A worker that LISTENs (PostgreSQL) is woken for whatever is written for its
+#: printer: its own database turns (writes, the log's batches) come this often
+#: instead of every poll interval. Each turn is a wake-up of its own while the
+#: printer prints at a few lines a second, and a wake-up costs a cold loop.
+LISTENING_TURN_SECONDS = 0.25
 
 
 class PrinterWorker(PortHandling, Reactions):
@@ -274,7 +279,7 @@ class PrinterWorker(PortHandling, Reactions):
         self.handle_protocol_events(now)
 
     def _housekeeping(self, now: float) -> None:
-        self.next_poll = now + self.poll_seconds
+        self.next_poll = now + self._turn_seconds()
         read = now >= self.next_read
         if read:
             self.next_read = now + self._read_interval()
@@ -359,6 +364,13 @@ class PrinterWorker(PortHandling, Reactions):
         if self.wakeups.take(readable=bool(readable)):
             self.next_poll = self.next_read = self.clock()
 
+    def _turn_seconds(self) -> float:
+        """How often the loop does its database work: every poll, or every
+        LISTENING_TURN_SECONDS while notifications wake it for requests."""
+        if self.wakeups.listening:
+            return max(self.poll_seconds, LISTENING_TURN_SECONDS)
+        return self.poll_seconds
+
     def _read_interval(self) -> float:
         """How long until requests and jobs are read again: rarely while
         notifications wake the loop (printers/worker/wakeup.py), else every poll."""
@@ -394,11 +406,13 @@ class PrinterWorker(PortHandling, Reactions):
         return data + more, now
 
     def _wait_time(self, now: float) -> float:
-        wake = min(self.next_poll, self.log.due(now))
+        # The log's batches ride on the turns (flush_if_due runs every turn): a
+        # wake-up of their own would be one more a quarter second.
+        wake = self.next_poll
         deadline = self.protocol.next_deadline()
         if deadline is not None:
             wake = min(wake, deadline)
-        return max(0.0, min(wake - now, self.poll_seconds))
+        return max(0.0, min(wake - now, self._turn_seconds()))
 
     # -- state -------------------------------------------------------------------
 

@@ -87,10 +87,6 @@ class ResponseLog:
         # The note takes the first dropped id, so ids still only grow.
         self._buffer.insert(0, (first, when, note, 8))
 
-    def due(self, now: float) -> float:
-        """When the next flush must happen (monotonic seconds)."""
-        return self._flush_at if self._buffer else now + FLUSH_SECONDS
-
     def flush_if_due(self, now: float) -> None:
         if len(self._buffer) >= FLUSH_LINES or (self._buffer and now >= self._flush_at):
             self.flush()

@@ -6,7 +6,6 @@ Temperature samples for the chart are written here and deleted by the upkeep
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from typing import TYPE_CHECKING, Any
 
 from django.utils import timezone
@@ -58,17 +57,25 @@ class PrinterStatus:
         if not (state_changed or force or (self._dirty and now >= self._save_at)):
             return
         values = {name: self.fields[name] for name in self._dirty}
-        values.update(
-            state=self.state, state_message=self.message, worker_seen_at=timezone.now()
-        )
-        with self.lease.held() if self.lease else nullcontext():
+        values.update(state=self.state, state_message=self.message)
+        if self.lease is not None:
+            # The lease's own check writes them (and worker_seen_at): one UPDATE a
+            # second, in plain SQL, instead of that check and an ORM update after it.
+            with self.lease.held(**values):
+                self._sample_if_read(now, values)
+        else:
+            values["worker_seen_at"] = timezone.now()
             Printer.objects.filter(pk=self.printer_id).update(**values)
-            if "temperatures" in values:
-                self.sample(now, values["temperatures"])
+            self._sample_if_read(now, values)
+        values.setdefault("worker_seen_at", timezone.now())
         broadcast.publisher().status(self.printer_id, values)
         self._dirty.clear()
         self._saved_state = (self.state, self.message)
         self._save_at = now + SAVE_SECONDS
+
+    def _sample_if_read(self, now: float, values: dict[str, Any]) -> None:
+        if "temperatures" in values:
+            self.sample(now, values["temperatures"])
 
     def sample(self, now: float, temperatures: dict[str, Any]) -> bool:
         """Keep a reading for the chart, at most every SAMPLE_SECONDS; True if written."""
