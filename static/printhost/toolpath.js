@@ -142,7 +142,6 @@ export function toolpathPreview(panel) {
     slider.value = String(number);
     const layer = info.layers[number];
     label.textContent = `Layer ${number + 1} of ${info.layers.length} · Z ${layer.z.toFixed(2)} mm`;
-    panel.dataset.layer = String(number + 1);
     let lines, below;
     try {
       [lines, below] = await Promise.all([fetchLayer(number), number > 0 ? fetchLayer(number - 1) : []]);
@@ -178,6 +177,7 @@ export function toolpathPreview(panel) {
       context.arc(head[0], head[1], 4 * devicePixelRatio, 0, 2 * Math.PI);
       context.fill();
     }
+    panel.dataset.layer = String(number + 1); // the layer on the canvas, once drawn
     panel.dataset.drawn = String(lines.length);
     panel.dataset.cancelledDrawn = String(greyed);
     showLegend(bySpeed, low, high, lines);

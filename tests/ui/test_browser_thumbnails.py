@@ -184,6 +184,7 @@ def test_the_preview_draws_layers_follows_the_print_and_stays_light(
     slider.fill("2")
     expect(label).to_have_text(re.compile(r"^Layer 3 of 50 · Z 0\.60 mm$"))
     expect(preview.locator("[data-test=preview-follow]")).not_to_be_checked()
+    expect(preview).to_have_attribute("data-layer", "3")  # drawn, not only labelled
     drawn = preview.get_attribute("data-drawn")
     preview.locator("[data-test=preview-travel]").check()
     preview.locator("[data-test=preview-colour]").select_option("speed")
