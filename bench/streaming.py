@@ -4,9 +4,10 @@ Cases: Marlin ping-pong, Marlin windowed (ADVANCED_OK, and the byte budget witho
 it) and GRBL character counting; 115200 and 250000 baud with 0, 4 and 16 ms latency
 each way, and unthrottled; then 8 printers at once at 250000. Each case runs in its
 own process (bench/case.py), one after another, so they do not share the CPU.
-Each case of the CPU goal (250000 baud, no latency) is run again straight after by
-the reference host (bench/reference_host.py, the least any Python host does a
-line), and the worker's CPU per 1,000 lines is printed beside it.
+Each case of the CPU goal (250000 baud, no latency) runs CPU_RUNS times in turns
+with the reference host (bench/reference_host.py, the least any Python host does a
+line); each side keeps its run of least CPU, and the worker's CPU per 1,000 lines is
+printed beside the reference's.
 Writes bench-results.json and prints a table plus the checks of the targets.
 """
 
@@ -33,6 +34,11 @@ FILES = {"segments": 20000, "long": 2000}
 #: what lets a Raspberry-Pi-class computer drive its printers (issue 11).
 CPU_GOAL = 0.10
 CPU_GOAL_BAUD = 250000
+#: The CPU goal's cases run this many times each, in turns with the reference host,
+#: and the run of least CPU is kept: on a shared machine a burst of someone else's
+#: load only ever adds (one 20 s run here gave 0.200, three 10 s runs after it
+#: 0.125 to 0.196), so it must not decide the verdict.
+CPU_RUNS = 3
 
 
 def cases(max_seconds: float) -> list[dict]:
@@ -150,6 +156,23 @@ def _has_reference(case: dict) -> bool:
     )
 
 
+def best_of(case: dict) -> tuple[dict, dict]:
+    """*case* and its reference twin, CPU_RUNS times in turns: each side's run of
+    least CPU (a run that failed is kept instead, so the failure shows)."""
+    mine, theirs = [], []
+    for _ in range(CPU_RUNS):
+        mine.append(run(case))
+        theirs.append(run(reference_twin(case)))
+    return least_cpu(mine), least_cpu(theirs)
+
+
+def least_cpu(runs: list[dict]) -> dict:
+    """The run of least CPU per 1,000 lines, with every run's figure beside it."""
+    failed = [r for r in runs if "error" in r or not r.get("cpu_s_per_1k_lines")]
+    best = failed[0] if failed else min(runs, key=lambda r: r["cpu_s_per_1k_lines"])
+    return {**best, "cpu_runs": [r.get("cpu_s_per_1k_lines") for r in runs]}
+
+
 def reference_twin(case: dict) -> dict:
     """*case* run by bench/reference_host.py: the least any Python host does."""
     return {**case, "name": f"reference/{case['name']}", "host": "reference"}
@@ -168,9 +191,14 @@ def reference_lines(results: list[dict]) -> list[str]:
         ratio = mine["cpu_s_per_1k_lines"] / r["cpu_s_per_1k_lines"]
         lines.append(
             f"INFO {mine['name']}: cpu/1k {mine['cpu_s_per_1k_lines']:.3f}, "
-            f"{ratio:.1f} x the reference host's {r['cpu_s_per_1k_lines']:.3f}"
+            f"{ratio:.1f} x the reference host's {r['cpu_s_per_1k_lines']:.3f} "
+            f"(least of {_runs(mine)} against {_runs(r)})"
         )
     return lines
+
+
+def _runs(result: dict) -> str:
+    return ", ".join(f"{cpu:.3f}" for cpu in result.get("cpu_runs") or [] if cpu)
 
 
 def cpu_checks(results: list[dict]) -> list[str]:
@@ -230,11 +258,13 @@ def main(argv: list[str] | None = None) -> int:
     for case in cases(options.max_seconds):
         if options.only and options.only not in case["name"]:
             continue
-        result = run(case)
-        results.append(result)
-        print(f"{result['name']}: link use {result.get('link_use')}", flush=True)
         if _has_reference(case):
-            results.append({**run(reference_twin(case)), "group": "reference"})
+            result, reference = best_of(case)
+            results += [result, {**reference, "group": "reference"}]
+        else:
+            result = run(case)
+            results.append(result)
+        print(f"{result['name']}: link use {result.get('link_use')}", flush=True)
     if options.only:
         return finish(results, Path(options.out))
     results += logging_cost(options.max_seconds)
