@@ -67,7 +67,7 @@ INSTALLED_APPS = [
 MIDDLEWARE = [
     # First: it times everything below it (printhost/metrics_web.py).
     "printhost.metrics_web.request_latency",
-    "printhost.slashes.CollapseSlashesMiddleware",
+    "printhost.slashes.collapse_slashes",
     "django.middleware.security.SecurityMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",
