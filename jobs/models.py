@@ -339,6 +339,8 @@ FINISHED_STATES = frozenset(
 )
 #: States in which a worker owns the job; after a crash they become INTERRUPTED.
 ACTIVE_STATES = frozenset({Job.State.PRINTING, Job.State.PAUSED})
+#: A printer's active jobs in this order: the first is its running job.
+RUNNING_ORDER = ("started_at", "pk")
 
 
 class Upload(models.Model):
@@ -385,7 +387,7 @@ def running_job(printer_id: int) -> Job | None:
         Job.objects.filter(printer_id=printer_id, state__in=ACTIVE_STATES)
         .select_related("printer", "analysis")
         .defer("analysis__result")
-        .order_by("started_at", "pk")
+        .order_by(*RUNNING_ORDER)
         .first()
     )
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from jobs.models import ACTIVE_STATES, Job
+from jobs.models import ACTIVE_STATES, RUNNING_ORDER, Job
 from printers.models import Printer
 from printhost.clients import ONLINE_STATES
 
@@ -27,7 +27,7 @@ def running_job_states(printer_ids: Iterable[int]) -> dict[int, str]:
     of printers asked one query a printer: 50 ms for 32 of them)."""
     rows = (
         Job.objects.filter(printer_id__in=list(printer_ids), state__in=ACTIVE_STATES)
-        .order_by("started_at", "pk")
+        .order_by(*RUNNING_ORDER)
         .values_list("printer_id", "state")
     )
     states: dict[int, str] = {}
@@ -74,7 +74,7 @@ def running_and_queued(printer: Printer) -> tuple[Job | None, list[Job]]:
         )
         .select_related("analysis")
         .defer("analysis__result")
-        .order_by("started_at", "pk")
+        .order_by(*RUNNING_ORDER)
     )
     for job in rows:
         job.printer = printer
