@@ -2,7 +2,10 @@
 
 Real sockets, real server behind: `cut()` closes every connection through it and
 turns new ones away (accepted, then closed at once, as a restarting server does),
-`restore()` lets them through again.
+`restore()` lets them through again. `cut_at()` is a blip at one chosen moment:
+the connections drop as the client sends a given message, before the server sees it
+or after the server answered it (the client never hears the answer), and new
+connections go through at once.
 """
 
 from __future__ import annotations
@@ -24,6 +27,12 @@ class TcpProxy:
         self._closed = threading.Event()
         self._lock = threading.Lock()
         self._sockets: set[socket.socket] = set()
+        #: cut_at(): the marker awaited, and whether the server answers it first.
+        self._marker = b""
+        self._after_reply = False
+        #: The upstream socket whose next answer is dropped with the cut.
+        self._drop_reply_of: socket.socket | None = None
+        self.blipped = threading.Event()
         threading.Thread(target=self._accept, daemon=True).start()
 
     def url(self, scheme: str, path: str = "", user: str = "") -> str:
@@ -32,6 +41,9 @@ class TcpProxy:
 
     def cut(self) -> None:
         self._cut.set()
+        self._drop_all()
+
+    def _drop_all(self) -> None:
         self.cuts += 1
         with self._lock:
             for sock in self._sockets:
@@ -39,6 +51,19 @@ class TcpProxy:
                     sock.shutdown(socket.SHUT_RDWR)
                 sock.close()
             self._sockets.clear()
+
+    def cut_at(self, marker: bytes, *, after_reply: bool) -> None:
+        """Once: drop every connection as a client sends a message holding *marker*,
+        before the server gets it, or (*after_reply*) once the server has answered
+        it, with the answer lost. `blipped` is set when it happened."""
+        self._marker, self._after_reply = marker, after_reply
+        self.blipped.clear()
+
+    def _blip(self) -> None:
+        self._marker = b""
+        self._drop_reply_of = None
+        self._drop_all()
+        self.blipped.set()
 
     def restore(self) -> None:
         self._cut.clear()
@@ -65,14 +90,24 @@ class TcpProxy:
             upstream.settimeout(None)
             with self._lock:
                 self._sockets.update((client, upstream))
-            for source, sink in ((client, upstream), (upstream, client)):
+            for source, sink, asks in ((client, upstream, True),
+                                       (upstream, client, False)):  # fmt: skip
                 threading.Thread(
-                    target=self._pump, args=(source, sink), daemon=True
+                    target=self._pump, args=(source, sink, asks), daemon=True
                 ).start()
 
-    def _pump(self, source: socket.socket, sink: socket.socket) -> None:
+    def _pump(self, source: socket.socket, sink: socket.socket, asks: bool) -> None:
+        """Pass on what *source* sends; *asks*: it is the client."""
         try:
             while data := source.recv(65536):
+                if source is self._drop_reply_of:
+                    self._blip()  # the server did it; the client never hears
+                    return
+                if asks and self._marker and self._marker in data:
+                    if not self._after_reply:
+                        self._blip()  # the server never sees it
+                        return
+                    self._drop_reply_of = sink
                 sink.sendall(data)
         except OSError:
             pass

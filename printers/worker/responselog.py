@@ -6,6 +6,7 @@ by the upkeep (`printers/upkeep.py`, from Celery beat), never in the worker's lo
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import TYPE_CHECKING
 
@@ -21,7 +22,12 @@ if TYPE_CHECKING:
     from contextlib import AbstractContextManager
     from datetime import datetime
 
+    from django.db.backends.base.base import BaseDatabaseWrapper
+    from django.db.backends.utils import CursorWrapper
+
     from printers.worker.lease import Lease
+
+logger = logging.getLogger("printhost.worker")
 
 #: Flush at least this often (s) and whenever this many lines wait.
 FLUSH_SECONDS = 0.25
@@ -56,6 +62,10 @@ class ResponseLog:
         #: The loop's time of the last batch stored by flush_if_due: its transaction
         #: checked the lease (the loop skips its own check right after one).
         self.stored_at = float("-inf")
+        #: A batch failed in a way that leaves open whether it went in (the
+        #: connection dropped after the server may have committed it): the next
+        #: flush asks the table before it writes.
+        self._in_doubt = False
 
     def add(self, text: str, kind: int) -> int:
         """Log one line; returns its id.
@@ -101,27 +111,71 @@ class ResponseLog:
         COPY, which costs the worker a quarter of the CPU of an INSERT's
         executemany (7 against 28 us a row, psycopg's binary build), elsewhere a
         plain executemany.
+
+        The buffer is emptied only once the rows are in: while the database is
+        away (the lease raises DatabaseAway) they wait here, in order. A batch
+        whose connection dropped may still have gone in (the server committed, its
+        answer was lost): the next flush first drops the lines the table already
+        has, so none is lost and none is stored twice.
         """
         if not self._buffer:
             return
         connection = connections[ResponseLine.objects.db]
-        batch = list(self._buffer)
+        self._in_doubt, was_in_doubt = True, self._in_doubt
+        # Errors of the COPY (psycopg's own cursor) as Django's: a dropped
+        # connection is an OperationalError, which the lease takes for the
+        # database away.
+        with (
+            self._held(),
+            connection.wrap_database_errors,
+            connection.cursor() as cursor,
+        ):
+            if was_in_doubt:
+                self._forget_stored(cursor)
+            batch = list(self._buffer)
+            if batch:
+                self._write(connection, cursor, batch)
+        self._in_doubt = False
+        del self._buffer[: len(batch)]
+        if batch:
+            # Published after the commit: a client can always read a gap from
+            # the table.
+            broadcast.publisher().lines(self.printer_id, batch)
+
+    def _forget_stored(self, cursor: CursorWrapper) -> None:
+        """Drop from the buffer the lines a batch in doubt did store (only this
+        worker writes the printer's log, so the highest stored id says which)."""
+        table = cursor.db.ops.quote_name(ResponseLine._meta.db_table)
+        cursor.execute(
+            f"SELECT MAX(seq) FROM {table} WHERE printer_id = %s", [self.printer_id]
+        )
+        (stored,) = cursor.fetchone()
+        kept = [line for line in self._buffer if line[0] > (stored or 0)]
+        if len(kept) < len(self._buffer):
+            logger.warning(
+                "printer %s: a batch of the response log whose answer was lost "
+                "had gone in (%d lines); not storing them twice",
+                self.printer_id,
+                len(self._buffer) - len(kept),
+            )
+        self._buffer[:] = kept
+
+    def _write(
+        self,
+        connection: BaseDatabaseWrapper,
+        cursor: CursorWrapper,
+        batch: list[tuple[int, datetime, str, int]],
+    ) -> None:
         rows = _rows(self.printer_id, batch, connection.ops.adapt_datetimefield_value)
         table = connection.ops.quote_name(ResponseLine._meta.db_table)
         columns = "(printer_id, seq, time, text, kind)"
-        # The buffer is emptied only once the rows are in: while the database is
-        # away (the lease raises DatabaseAway) they wait here, in order.
-        with self._held(), connection.cursor() as cursor:
-            if connection.vendor == "postgresql":
-                with cursor.cursor.copy(f"COPY {table} {columns} FROM STDIN") as copy:
-                    for row in rows:
-                        copy.write_row(row)
-            else:
-                sql = f"INSERT INTO {table} {columns} VALUES (%s, %s, %s, %s, %s)"
-                cursor.executemany(sql, rows)
-        del self._buffer[: len(batch)]
-        # Published after the commit: a client can always read a gap from the table.
-        broadcast.publisher().lines(self.printer_id, batch)
+        if connection.vendor == "postgresql":
+            with cursor.cursor.copy(f"COPY {table} {columns} FROM STDIN") as copy:
+                for row in rows:
+                    copy.write_row(row)
+        else:
+            sql = f"INSERT INTO {table} {columns} VALUES (%s, %s, %s, %s, %s)"
+            cursor.executemany(sql, rows)
 
     def discard(self) -> None:
         """Forget unsaved lines (a worker that lost its lease writes nothing more)."""
