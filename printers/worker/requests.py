@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from functools import partial
 from typing import TYPE_CHECKING
 
 from django.db import connections
@@ -21,6 +22,7 @@ from printers.streaming.esp import (
 )
 from printers.streaming.objects import ObjectFilter
 from printers.worker.emergency import after_m112
+from printers.worker.lease import UNREACHABLE, DatabaseAway
 from printers.worker.prompts import DISPLAY_HINT
 
 if TYPE_CHECKING:
@@ -48,7 +50,15 @@ class RequestPoller:
         self.worker = worker
 
     def poll(self, now: float) -> int:
-        """Handle every pending request, emergencies first; returns how many."""
+        """Handle every pending request, emergencies first; returns how many.
+
+        Each row is acted on at most once, whatever the database does meanwhile:
+        an emergency goes to the port before anything is written (sent twice, it
+        stops the machine twice, harmlessly), every other row is marked taken
+        before it is acted on (a move or a heater must not run twice because the
+        mark was lost), and what is written after an act waits while the
+        database is away (`hold_or_run`).
+        """
         if not self._any_pending():
             return 0
         rows = list(
@@ -57,9 +67,31 @@ class RequestPoller:
             ).order_by("id")[:200]
         )
         rows.sort(key=lambda row: row.kind != Kind.EMERGENCY)
+        taken = False
         for row in rows:
-            self._handle(row, now)
+            if row.kind != Kind.EMERGENCY and not taken:
+                self._take([r.pk for r in rows if r.kind != Kind.EMERGENCY])
+                taken = True
+            self._handle_once(row, now)
         return len(rows)
+
+    def _take(self, ids: list[int]) -> None:
+        """Mark the rows taken (DatabaseAway: none is; they are read again later)."""
+        with self.worker.lease.held():
+            QueuedCommand.objects.filter(pk__in=ids, state=RowState.PENDING).update(
+                state=RowState.SENT
+            )
+
+    def _handle_once(self, row: QueuedCommand, now: float) -> None:
+        """Act on a taken row; the database gone in the middle fails it, clearly."""
+        try:
+            self._handle(row, now)
+        except (DatabaseAway, *UNREACHABLE) as error:
+            if not isinstance(error, DatabaseAway):
+                self.worker.lease.unreachable(error)
+            self._finish(
+                row, "error: the database went away while this was handled; ask again"
+            )
 
     def _any_pending(self) -> bool:
         """One cheap indexed read (the pending index) before the ORM's query.
@@ -106,7 +138,6 @@ class RequestPoller:
             kind, lines, name=row.text[:40], ref=("cmd", row.pk), origin=row.origin
         )
         self.worker.host.submit(stream)
-        QueuedCommand.objects.filter(pk=row.pk).update(state=RowState.SENT)
 
     def _emergency(self, row: QueuedCommand, now: float) -> None:
         """Out ahead of everything: written to the port before this returns."""
@@ -312,7 +343,8 @@ class RequestPoller:
         return ", ".join(words), data
 
     def _finish(self, row: QueuedCommand, reply: str) -> None:
-        self._finish_id(row.pk, reply)
+        """Reply to a request just handled (held while the database is away)."""
+        self.worker.hold_or_run(partial(self._finish_id, row.pk, reply))
 
     def _finish_id(self, row_id: int, reply: str) -> None:
         failed = reply.startswith("error")

@@ -4,7 +4,8 @@ and nothing is lost from the response log or the progress; nobody else drives it
 A real worker (`runhost`) reaches a real PostgreSQL through a TCP proxy the test
 cuts for longer than the lease; the control plane's reaper, which still reaches
 the database, takes the printer for dead meanwhile; the worker, back, says the run
-went on and finishes it."""
+went on and finishes it. And a command whose row the worker could not mark taken
+(the connection dropped at that very write) runs once, never again after."""
 
 from __future__ import annotations
 
@@ -91,3 +92,54 @@ def test_a_print_goes_on_while_the_database_is_away_and_nothing_is_lost(
     assert "went on while the database was away" in notes
     history = host.query("SELECT outcome FROM jobs_historyentry")
     assert history == [("completed",)]
+
+
+#: Three lines in one request: a script stream, closed by its end (not by an ok).
+SCRIPT = "M117 first\nM117 second\nM117 third"
+
+
+def test_a_command_runs_once_when_the_database_drops_as_the_worker_takes_it(
+    tmp_path: Path,
+):
+    direct = postgres_url()
+    host = Host(tmp_path, direct)
+    host.migrate()
+    record = host.add_simulated_printer("p1", sim_args="--time-scale 0")
+    proxy = TcpProxy(("127.0.0.1", 5432))
+    worker_side = Host(tmp_path, proxy.url("postgresql", urlparse(direct).path,
+                                           user="postgres"))  # fmt: skip
+    ask = lambda text: host.shell(
+        "from printers.models import Printer, QueuedCommand; print(QueuedCommand."
+        f"objects.create(printer=Printer.objects.get(), text={text!r}).pk)"
+    )
+    rows = lambda: dict(
+        (pk, (state, reply))
+        for pk, state, reply in host.query(
+            "SELECT id, state, reply FROM printers_queuedcommand"
+        )
+    )
+    ended = lambda pk: rows().get(pk, ("",))[0] in ("done", "failed")
+    try:
+        with worker_side.running(web=False):
+            wait_for(
+                lambda: host.query("SELECT state FROM printers_printer")[0][0]
+                == "idle",
+                60, "the printer to be ready",
+            )  # fmt: skip
+            # The worker's first write to the request table meets a dropped
+            # connection: the database never sees it.
+            proxy.cut_at(b'UPDATE "printers_queuedcommand"', after_reply=False)
+            script = int(ask(SCRIPT).splitlines()[-1])
+            wait_for(lambda: ended(script), 60, "the script to be answered")
+            assert proxy.blipped.is_set()
+            # A request after it: were the script read again, it would run first.
+            fence = int(ask("M117 fence").splitlines()[-1])
+            wait_for(lambda: ended(fence), 60, "the fence to be answered")
+            log = worker_side.log_tail(400)
+    finally:
+        proxy.close()
+
+    assert rows()[script] == ("done", "ok"), log
+    ran = [c for c in record.read_text().splitlines() if c.startswith("M117")]
+    assert ran == ["M117 first", "M117 second", "M117 third", "M117 fence"]
+    assert "the database does not answer" in log and "answers again" in log
