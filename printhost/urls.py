@@ -13,6 +13,7 @@ from printhost.logins import ThrottledLoginView
 from printhost.metrics_view import metrics
 
 handler403 = "printhost.pages.denied"
+handler500 = "printhost.errors.server_error"
 
 urlpatterns = [
     path("admin/", admin.site.urls),

@@ -13,6 +13,7 @@ import json
 import logging
 from typing import TYPE_CHECKING, Any
 
+from django.db import InterfaceError, OperationalError
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja.errors import AuthenticationError, HttpError, ValidationError
 from ninja.security.base import AuthBase
@@ -24,6 +25,7 @@ from jobs.sdcard import BadCardName, SdRefused
 from jobs.services import ChecksumMismatch, FileRemoved
 from printers.models import Printer
 from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_request
+from printhost.errors import DATABASE_AWAY, RETRY_AFTER_SECONDS
 
 if TYPE_CHECKING:
     from collections.abc import Collection
@@ -233,6 +235,14 @@ def install_error_handlers(api: Any) -> None:
     def _bad_gcode(request: HttpRequest, exc: Exception) -> HttpResponse:
         status = 413 if "over the limit" in str(exc) else 400
         return reply(request, str(exc), status)
+
+    @api.exception_handler(OperationalError)
+    @api.exception_handler(InterfaceError)
+    def _database_away(request: HttpRequest, exc: Exception) -> HttpResponse:
+        log.error("%s %s: the database is away: %s", request.method, request.path, exc)
+        response = reply(request, DATABASE_AWAY, 503)
+        response["Retry-After"] = str(RETRY_AFTER_SECONDS)
+        return response
 
     @api.exception_handler(Exception)
     def _unexpected(request: HttpRequest, exc: Exception) -> HttpResponse:
