@@ -49,6 +49,7 @@ class MarlinMachine:
         planner: int,
         time_scale: float,
         now: float,
+        instant_heat: bool = False,
     ) -> None:
         self._print = output
         self.time_scale = time_scale
@@ -58,7 +59,8 @@ class MarlinMachine:
         self.relative = False
         self.relative_e = False
         self.feedrate = DEFAULT_FEEDRATE
-        rate = 1.0 / time_scale if time_scale else 0.0  # 0: heaters jump to target
+        # 0: heaters jump to target (no motion timing, or the heat-up left out)
+        rate = 1.0 / time_scale if time_scale and not instant_heat else 0.0
         self.hotend = Heater(4.0 * rate, 2.0 * rate, now)
         self.bed = Heater(1.0 * rate, 0.5 * rate, now)
         #: A reply that replaces the plain ok (M105's `ok T:...`).
