@@ -4,8 +4,8 @@ PostgreSQL, Redis, one control plane and 3 worker hosts (each `runhost` in its o
 process group and data directory) driving 32 simulated printers with motion timing
 on (`--time-scale`, 0.25 by default: moves take a quarter of the firmware's time,
 four times a real print's line rate, so a machine that keeps up here keeps up at
-real speed; heaters reach their targets at once, so the times compare streams, not
-heat-ups), printing real slicer files (tests/farmrig). In one run, side by side:
+real speed; heat-ups and homing take no time, so the times compare streams, not
+the firmware's waits), printing real slicer files (tests/farmrig). In one run, side by side:
 
 1. Single-printer baseline: each file printed alone on one printer of the farm.
 2. Capacity: one job per printer, all at once (a worker host's whole shelf
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     config = FarmConfig(
         hosts=options.hosts, printers=options.printers, jobs=options.jobs,
-        time_scale=options.time_scale, instant_heat=True, lease_seconds=10.0,
+        time_scale=options.time_scale, instant_waits=True, lease_seconds=10.0,
         long_files=options.long, patience=8.0,
         env={"PRINTHOST_METRICS_TOKEN": METRICS_TOKEN},
     )  # fmt: skip
@@ -140,10 +140,12 @@ def run_farm(folder: Path, config: FarmConfig, options: argparse.Namespace) -> d
 def baseline(farm: Farm) -> dict[str, float]:
     """Seconds each file of the mix takes printed alone (one printer, the farm idle).
 
-    Each file on a printer that has not printed yet. The simulators' heaters reach
-    their targets at once (`--instant-heat`): heat-up is the firmware's time, not
-    the host's, and with it a job on a printer still warm from its last one ran up
-    to 10 % faster than its cold baseline, which hid any slowdown of its stream.
+    Each file on a printer that has not printed yet. The simulators' heat-ups and
+    homing take no time (`--instant-waits`): they are the firmware's time, not the
+    host's, and their length depends on where the last job left the printer. With
+    them, a job on a printer still warm from its last one ran up to 10 % faster
+    than its cold baseline, and one whose last job left the head high homed about
+    1.8 s longer (the simulator homes Z at 4 mm/s): both hid what the stream did.
     """
     times = {}
     used: set[str] = set()

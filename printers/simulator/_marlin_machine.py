@@ -49,7 +49,7 @@ class MarlinMachine:
         planner: int,
         time_scale: float,
         now: float,
-        instant_heat: bool = False,
+        instant_waits: bool = False,
     ) -> None:
         self._print = output
         self.time_scale = time_scale
@@ -59,8 +59,10 @@ class MarlinMachine:
         self.relative = False
         self.relative_e = False
         self.feedrate = DEFAULT_FEEDRATE
-        # 0: heaters jump to target (no motion timing, or the heat-up left out)
-        rate = 1.0 / time_scale if time_scale and not instant_heat else 0.0
+        #: Heat-ups and homing take no time (moves and dwells keep theirs).
+        self.instant_waits = instant_waits
+        # 0: heaters jump to target (no motion timing, or the waits left out)
+        rate = 1.0 / time_scale if time_scale and not instant_waits else 0.0
         self.hotend = Heater(4.0 * rate, 2.0 * rate, now)
         self.bed = Heater(1.0 * rate, 0.5 * rate, now)
         #: A reply that replaces the plain ok (M105's `ok T:...`).
@@ -235,6 +237,8 @@ class MarlinMachine:
         axes = [i for i, letter in enumerate("XYZ") if letter in given] or [0, 1, 2]
         x, y, z, _ = self.position
         seconds = 1.0 + max(abs(x), abs(y)) / 50.0 + abs(z) / 4.0
+        if self.instant_waits:
+            seconds = 0.0
         now = yield from self._sleep(seconds, now)
         for axis in axes:  # `G28 X Y` homes X and Y only
             self.position[axis] = 0.0

@@ -75,8 +75,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     machine.add_argument("--planner", type=int, default=16, help="planner blocks")
     machine.add_argument("--time-scale", type=float, default=1.0, help="0 = instant")
     machine.add_argument(
-        "--instant-heat", action="store_true",
-        help="Marlin: heaters reach their targets at once (moves keep the time scale)",
+        "--instant-waits", action="store_true",
+        help="Marlin: heat-ups and homing take no time (moves keep the time scale)",
     )  # fmt: skip
     machine.add_argument(
         "--advanced-ok", action=argparse.BooleanOptionalAction, default=True
@@ -288,7 +288,7 @@ def _firmware_with(
         bufsize=args.bufsize,
         planner=args.planner,
         time_scale=args.time_scale,
-        instant_heat=args.instant_heat,
+        instant_waits=args.instant_waits,
         advanced_ok=args.advanced_ok,
         emergency_parser=args.emergency_parser,
         keepalive=args.keepalive,

@@ -64,14 +64,14 @@ class MarlinFirmware(LineInput):
         on_execute: Callable[[str], None] | None = None,
         now: float = 0.0,
         cancel_objects: bool = False,
-        instant_heat: bool = False,
+        instant_waits: bool = False,
     ) -> None:
         self.rx_buffer = rx_buffer
         self.bufsize = bufsize
         self.planner_blocks = planner
         self.time_scale = time_scale
-        #: Heaters reach their targets at once, whatever the time scale.
-        self.instant_heat = instant_heat
+        #: Heat-ups and homing take no time, whatever the time scale.
+        self.instant_waits = instant_waits
         self.advanced_ok = advanced_ok
         self.emergency_parser = emergency_parser
         self.default_keepalive = keepalive
@@ -180,7 +180,7 @@ class MarlinFirmware(LineInput):
             planner=self.planner_blocks,
             time_scale=self.time_scale,
             now=now,
-            instant_heat=self.instant_heat,
+            instant_waits=self.instant_waits,
         )
         if self.sd is not None:
             self.sd.reset()

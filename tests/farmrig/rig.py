@@ -59,8 +59,8 @@ class FarmConfig:
     jobs: int = 10
     #: The simulators' motion timing: moves take the firmware's time times this.
     time_scale: float = 0.05
-    #: The simulators' heaters reach their targets at once (`--instant-heat`).
-    instant_heat: bool = False
+    #: The simulators' heat-ups and homing take no time (`--instant-waits`).
+    instant_waits: bool = False
     baud: int = 250000
     lease_seconds: float = 3.0
     #: Every third job prints one of the long real files (the full-size farm).
@@ -154,8 +154,8 @@ class Farm:
     def _start_simulators(self) -> dict[str, SimulatorProcess]:
         args = ["--baud", str(self.config.baud)]
         args += ["--time-scale", f"{self.config.time_scale:g}"]
-        if self.config.instant_heat:
-            args.append("--instant-heat")
+        if self.config.instant_waits:
+            args.append("--instant-waits")
         return {
             p.slug: start_simulator(
                 self.shelves[p.host].folder, "marlin", *args, name=p.slug

@@ -39,13 +39,17 @@ def test_m190_ends_when_the_firmware_is_stepped_at_its_own_deadlines():
     assert out.count(b"ok") >= 2, "M190 never ended"
 
 
-def test_instant_heat_ends_heat_up_waits_at_once_while_moves_keep_their_time():
-    """`--instant-heat` (the farm bench): heat-up is the firmware's time, not the
-    host's, and left out it cannot make a warm printer look faster than a cold one."""
-    firmware = MarlinFirmware(time_scale=1.0, now=1000.0, instant_heat=True)
+def test_instant_waits_end_heat_ups_and_homing_at_once_while_moves_keep_their_time():
+    """`--instant-waits` (the farm bench): heat-ups and homing are the firmware's
+    time, not the host's, and how long they take depends on where the last job left
+    the printer (warm heaters, a head left high)."""
+    firmware = MarlinFirmware(time_scale=1.0, now=1000.0, instant_waits=True)
     firmware.receive(b"M140 S60\nM190 S60\nM104 S215\nM109 S215\n", 1000.0)
     firmware.step(1000.0)
     assert firmware.data_to_send().count(b"ok") == 4  # no wait, not even a second
+    firmware.receive(b"G92 X200 Z50\nG28\n", 1000.0)  # 16.5 s to home otherwise
+    firmware.step(1000.0)
+    assert firmware.data_to_send().count(b"ok") == 2
 
     firmware.receive(b"G1 X100 F600\nM400\n", 1000.0)  # 10 s at 10 mm/s
     firmware.step(1000.0)
