@@ -2,8 +2,8 @@
 
 While PostgreSQL restarts (or the network to it is cut) every request that reads or
 writes fails with a database error. Those get 503 with `Retry-After`, and a message
-a client can show, instead of a bare 500: nothing was done, and asking again later
-will work. Any other unexpected error stays a 500 (Django has already logged its
+a client can show, instead of a bare 500: asking again once it is back will work.
+Any other unexpected error stays a 500 (Django has already logged its
 traceback). Neither answer touches the database, the session or a template.
 """
 
@@ -17,9 +17,7 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 #: Seconds a client is asked to wait before it tries again.
 RETRY_AFTER_SECONDS = 5
 
-DATABASE_AWAY = (
-    "the database is not reachable right now; nothing was done, try again shortly"
-)
+DATABASE_AWAY = "the database is not reachable right now; try again shortly"
 INTERNAL = "internal error: the server logged it"
 
 
