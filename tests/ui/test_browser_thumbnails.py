@@ -88,6 +88,9 @@ def test_the_printing_cards_picture_layer_and_end_time_come_from_the_analysis(
     expect(picture).to_have_attribute(
         "src", re.compile(r"/printer/thumbnail/mk-pic/\d+/96x96\.png")
     )
+    # The src is set before the picture has loaded: its width is 0 until then.
+    loaded = "el => el.complete && el.naturalWidth > 0"
+    page.wait_for_function(loaded, arg=picture.element_handle(), timeout=PRINT_MS)
     assert page.evaluate("el => el.naturalWidth", picture.element_handle()) == 96
     expect(card.locator("[data-test=layer]")).to_have_text(
         re.compile(r"^\d+ / 50$"), timeout=PRINT_MS
