@@ -112,7 +112,10 @@ def command_of(raw: bytes) -> str:
 
 def command_problem(text: str, *, grbl: bool = False) -> str:
     """Why the firmware's protocol would refuse *text* (from `command_of`), or ""."""
-    bad = next((char for char in text if not _printable(char)), None)
+    # Printable ASCII (almost every line) is refused by nothing but GRBL's rule:
+    # the character-by-character search is for the rare line that is not.
+    plain = text.isascii() and text.isprintable()
+    bad = None if plain else next((c for c in text if not _printable(c)), None)
     if bad is not None:
         if ord(bad) < 0x80:
             what = f"control byte 0x{ord(bad):02x}"

@@ -10,6 +10,8 @@ from __future__ import annotations
 import re
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from jobs.gcode import BadGcode, command_of, command_problem, inspect_file
 from printers.protocol.errors import CommandRejected
@@ -112,3 +114,16 @@ def test_printer_scripts_the_protocol_would_refuse_are_refused_with_their_line(
         HTTP_X_API_KEY=key,
     )
     assert response.status_code == 200, response.content
+
+
+_ANY_CHAR = st.characters(max_codepoint=0x2FF) | st.sampled_from("\ufffd\x7f\t°")
+
+
+@given(st.text(alphabet=_ANY_CHAR, max_size=40))
+def test_a_line_is_refused_exactly_when_it_holds_a_character_outside_printable_ascii(
+    text: str,
+):
+    """The quick test for printable ASCII agrees with the character-by-character one
+    on any text: accented letters, control bytes, DEL, the replacement character."""
+    outside = any(not " " <= char <= "~" for char in text)
+    assert bool(command_problem(text)) == outside
