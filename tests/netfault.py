@@ -30,6 +30,7 @@ class TcpProxy:
         #: cut_at(): the marker awaited, and whether the server answers it first.
         self._marker = b""
         self._after_reply = False
+        self._then = b""
         #: The upstream socket whose next answer is dropped with the cut.
         self._drop_reply_of: socket.socket | None = None
         self.blipped = threading.Event()
@@ -52,11 +53,13 @@ class TcpProxy:
                 sock.close()
             self._sockets.clear()
 
-    def cut_at(self, marker: bytes, *, after_reply: bool) -> None:
+    def cut_at(self, marker: bytes, *, after_reply: bool, then: bytes = b"") -> None:
         """Once: drop every connection as a client sends a message holding *marker*,
         before the server gets it, or (*after_reply*) once the server has answered
-        it, with the answer lost. `blipped` is set when it happened."""
-        self._marker, self._after_reply = marker, after_reply
+        it, with the answer lost. With *then*, the message that counts is the next
+        one holding *then* after *marker* (the COMMIT of marker's transaction).
+        `blipped` is set when it happened."""
+        self._marker, self._after_reply, self._then = marker, after_reply, then
         self.blipped.clear()
 
     def _blip(self) -> None:
@@ -104,10 +107,13 @@ class TcpProxy:
                     self._blip()  # the server did it; the client never hears
                     return
                 if asks and self._marker and self._marker in data:
-                    if not self._after_reply:
+                    if self._then:  # this one only arms the cut
+                        self._marker, self._then = self._then, b""
+                    elif not self._after_reply:
                         self._blip()  # the server never sees it
                         return
-                    self._drop_reply_of = sink
+                    else:
+                        self._drop_reply_of = sink
                 sink.sendall(data)
         except OSError:
             pass

@@ -136,6 +136,7 @@ class PrinterWorker(PortHandling, Reactions):
         for job in recovered:
             self.note(f"job {job.pk} ({job.name}) {job.message}")
             self.waitstart = True
+        self.requests.fail_orphans("the printer's worker stopped before it answered")
         self.waitstart = self.waitstart or self._was_waiting()
         self.update_state()
         self.status.save_if_due(self.clock(), force=True)
@@ -321,10 +322,12 @@ class PrinterWorker(PortHandling, Reactions):
         """The database is back: write what waited, in order, before anything new.
 
         Held stream events first (a run's outcome, which also decides the bed
-        must be cleared before the next job), then a run the control plane took
-        for dead is shown running again, then the log, progress and status.
+        must be cleared before the next job), then requests taken but never
+        acted on are failed, then a run the control plane took for dead is shown
+        running again, then the log, progress and status.
         """
         self.write_held_actions()
+        self.requests.fail_orphans("the answer was lost while the database was away")
         stream = self.host.current_stream
         if stream is not None and stream.ref is not None and stream.type.is_stream:
             with self.lease.held():

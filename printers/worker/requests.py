@@ -93,6 +93,26 @@ class RequestPoller:
                 row, "error: the database went away while this was handled; ask again"
             )
 
+    def fail_orphans(self, why: str) -> int:
+        """Fail the printer's taken rows no stream of this worker holds; how many.
+
+        A row is marked taken before it is acted on, so one can be left taken and
+        never answered: its worker stopped first, or the database committed the
+        mark and the answer was lost, so this worker never acted on it. Its client
+        is told why and asks again (never sent twice: it may have run).
+        """
+        host = self.worker.host
+        mine = {_row_id(s) for s in (*host.stream_queue, *host.script_queue)}
+        orphans = QueuedCommand.objects.filter(
+            printer_id=self.worker.printer.pk, state=RowState.SENT
+        ).exclude(pk__in=mine - {None})
+        with self.worker.lease.held():
+            return orphans.update(
+                state=RowState.FAILED,
+                reply=f"error: {why}; ask again",
+                done_at=timezone.now(),
+            )
+
     def _any_pending(self) -> bool:
         """One cheap indexed read (the pending index) before the ORM's query.
 

@@ -99,3 +99,25 @@ def test_abort_stops_the_job_and_says_who(marlin, make_job):
     job = Job.objects.get(pk=job.pk)
     assert job.message == "aborted by tester"
     assert job.lines_acked < 5003
+
+
+def test_a_request_the_last_worker_took_and_never_answered_fails_with_the_reason(
+    make_printer,
+):
+    """Taken (`sent`) before it is acted on, a request whose worker stopped first
+    is never answered; the next worker tells its client why, instead of leaving it
+    waiting for ever. Requests still pending are left for the poll."""
+    printer = make_printer(port="/nonexistent")
+    taken = QueuedCommand.objects.create(printer=printer, text="G28", state="sent")
+    pending = QueuedCommand.objects.create(printer=printer, text="M114")
+
+    worker = PrinterWorker(printer)
+    worker.start()
+    worker.stop()
+
+    taken.refresh_from_db()
+    assert taken.state == "failed"
+    assert taken.reply == (
+        "error: the printer's worker stopped before it answered; ask again"
+    )
+    assert QueuedCommand.objects.get(pk=pending.pk).state == "pending"

@@ -143,3 +143,49 @@ def test_a_command_runs_once_when_the_database_drops_as_the_worker_takes_it(
     ran = [c for c in record.read_text().splitlines() if c.startswith("M117")]
     assert ran == ["M117 first", "M117 second", "M117 third", "M117 fence"]
     assert "the database does not answer" in log and "answers again" in log
+
+
+def test_a_command_whose_taking_was_committed_unheard_fails_and_says_why(
+    tmp_path: Path,
+):
+    """The database commits the worker's mark, and the answer is lost: the worker
+    never acted on the row. Once the database is back the row fails, saying why,
+    rather than wait for ever; nothing of it ran."""
+    direct = postgres_url()
+    host = Host(tmp_path, direct)
+    host.migrate()
+    record = host.add_simulated_printer("p1", sim_args="--time-scale 0")
+    proxy = TcpProxy(("127.0.0.1", 5432))
+    worker_side = Host(tmp_path, proxy.url("postgresql", urlparse(direct).path,
+                                           user="postgres"))  # fmt: skip
+    ask = lambda text: int(host.shell(
+        "from printers.models import Printer, QueuedCommand; print(QueuedCommand."
+        f"objects.create(printer=Printer.objects.get(), text={text!r}).pk)"
+    ).splitlines()[-1])  # fmt: skip
+    row = lambda pk: host.query(
+        f"SELECT state, reply FROM printers_queuedcommand WHERE id = {pk}"
+    )[0]
+    try:
+        with worker_side.running(web=False):
+            wait_for(
+                lambda: host.query("SELECT state FROM printers_printer")[0][0]
+                == "idle",
+                60, "the printer to be ready",
+            )  # fmt: skip
+            # The mark's transaction commits; the answer to its COMMIT is lost.
+            proxy.cut_at(
+                b'UPDATE "printers_queuedcommand"', after_reply=True, then=b"COMMIT"
+            )
+            script = ask(SCRIPT)
+            wait_for(lambda: row(script)[0] == "failed", 60, "the script to fail")
+            assert proxy.blipped.is_set()
+            fence = ask("M117 fence")
+            wait_for(lambda: row(fence)[0] == "done", 60, "the fence to be answered")
+    finally:
+        proxy.close()
+
+    assert row(script)[1] == (
+        "error: the answer was lost while the database was away; ask again"
+    )
+    ran = [c for c in record.read_text().splitlines() if c.startswith("M117")]
+    assert ran == ["M117 fence"]
