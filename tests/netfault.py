@@ -31,6 +31,8 @@ class TcpProxy:
         self._marker = b""
         self._after_reply = False
         self._then = b""
+        #: With *then*: the client connection the marker came on (then's too).
+        self._armed_on: socket.socket | None = None
         #: The upstream socket whose next answer is dropped with the cut.
         self._drop_reply_of: socket.socket | None = None
         self.blipped = threading.Event()
@@ -57,9 +59,11 @@ class TcpProxy:
         """Once: drop every connection as a client sends a message holding *marker*,
         before the server gets it, or (*after_reply*) once the server has answered
         it, with the answer lost. With *then*, the message that counts is the next
-        one holding *then* after *marker* (the COMMIT of marker's transaction).
+        one holding *then* after *marker* on the same connection (the COMMIT of
+        marker's transaction).
         `blipped` is set when it happened."""
         self._marker, self._after_reply, self._then = marker, after_reply, then
+        self._armed_on = None
         self.blipped.clear()
 
     def _blip(self) -> None:
@@ -106,8 +110,15 @@ class TcpProxy:
                 if source is self._drop_reply_of:
                     self._blip()  # the server did it; the client never hears
                     return
-                if asks and self._marker and self._marker in data:
+                armed = self._armed_on
+                if (
+                    asks
+                    and self._marker
+                    and self._marker in data
+                    and (armed is None or armed is source)
+                ):
                     if self._then:  # this one only arms the cut
+                        self._armed_on = source  # first: others' COMMITs skip
                         self._marker, self._then = self._then, b""
                     elif not self._after_reply:
                         self._blip()  # the server never sees it
