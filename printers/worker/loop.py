@@ -349,6 +349,8 @@ class PrinterWorker(PortHandling, Reactions):
             self.next_poll = now + self.poll_seconds
             close_failed_connections()
             self.lease.renew_if_due(now)
+            if self.lease.recovered:  # back while the printer is offline
+                self.write_held(now)
             if now >= self.next_read:
                 self.next_read = now + self._read_interval()
                 self.lease.check()

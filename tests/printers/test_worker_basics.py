@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+from functools import partial
+
 import pytest
+from django.db import OperationalError
 
 from jobs.models import Job
 from jobs.services import request_action, send_command
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printers.sample_gcode import commands_of, segments
+from printers.worker.lease import DatabaseAway
 from printers.worker.loop import PrinterWorker
 from tests.conftest import job_lines, wait_for
 
@@ -121,3 +126,30 @@ def test_a_request_the_last_worker_took_and_never_answered_fails_with_the_reason
         "error: the printer's worker stopped before it answered; ask again"
     )
     assert QueuedCommand.objects.get(pk=pending.pk).state == "pending"
+
+
+def test_an_offline_worker_writes_what_it_held_once_the_database_is_back(make_printer):
+    """The database went away and came back while the printer was offline: what
+    the worker held (here a request's answer) is written then, not only once the
+    printer is back."""
+    printer = make_printer(port="/nonexistent")
+    worker = PrinterWorker(printer)
+    worker.lease.keep_while_away = True  # run_printer holds the port's lock
+    worker.start()
+    worker.stay_offline = True
+    row = QueuedCommand.objects.create(printer=printer, text="M114", state="sent")
+    worker.lease.unreachable(OperationalError("server closed the connection"))
+    answer = QueuedCommand.objects.filter(pk=row.pk).update
+    worker.hold_or_run(partial(answer, state="done", reply="ok"))
+    assert worker.held, "the answer was written while the database was away"
+
+    def tick() -> None:  # as run() does: the database away does not end the loop
+        with contextlib.suppress(DatabaseAway):
+            worker.tick()
+
+    wait_for(
+        lambda: QueuedCommand.objects.get(pk=row.pk).state == "done",
+        10, "the held answer", step=tick,
+    )  # fmt: skip
+    assert not worker.held
+    worker.stop()
