@@ -10,7 +10,9 @@ went on and finishes it. And a command whose row the worker could not mark taken
 from __future__ import annotations
 
 import re
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
 import pytest
@@ -19,6 +21,9 @@ from printers.sample_gcode import commands_of, segments
 from tests.conftest import HOST_COMMANDS, wait_for
 from tests.hosts import Host, postgres_url
 from tests.netfault import TcpProxy
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
 
 pytestmark = [pytest.mark.slow, pytest.mark.services]
 
@@ -98,50 +103,74 @@ def test_a_print_goes_on_while_the_database_is_away_and_nothing_is_lost(
 SCRIPT = "M117 first\nM117 second\nM117 third"
 
 
+class CommandRig:
+    """One simulated printer whose worker reaches PostgreSQL through a proxy; the
+    test's own requests and reads go to PostgreSQL directly."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        direct = postgres_url()
+        self.host = Host(tmp_path, direct)
+        self.host.migrate()
+        self.record = self.host.add_simulated_printer("p1", sim_args="--time-scale 0")
+        self.proxy = TcpProxy(("127.0.0.1", 5432))
+        self.worker_side = Host(tmp_path, self.proxy.url(
+            "postgresql", urlparse(direct).path, user="postgres"))  # fmt: skip
+
+    @contextmanager
+    def running(self) -> Iterator[None]:
+        """The worker host, its printer ready; the proxy closed at the end."""
+        try:
+            with self.worker_side.running(web=False):
+                wait_for(
+                    lambda: self.host.query("SELECT state FROM printers_printer")
+                    == [("idle",)],
+                    60, "the printer to be ready",
+                )  # fmt: skip
+                yield
+        finally:
+            self.proxy.close()
+
+    def ask(self, text: str) -> int:
+        """Queue *text* as a request (as the API does); its row's id."""
+        return int(self.host.shell(
+            "from printers.models import Printer, QueuedCommand; print(QueuedCommand."
+            f"objects.create(printer=Printer.objects.get(), text={text!r}).pk)"
+        ).splitlines()[-1])  # fmt: skip
+
+    def row(self, pk: int) -> tuple[str, str]:
+        return self.host.query(
+            f"SELECT state, reply FROM printers_queuedcommand WHERE id = {pk}"
+        )[0]
+
+    def answered(self, pk: int, state: str = "") -> Callable[[], bool]:
+        """Whether the row ended (in *state*, if given)."""
+        ends = (state,) if state else ("done", "failed")
+        return lambda: self.row(pk)[0] in ends
+
+    def ran(self) -> list[str]:
+        """The M117 lines the firmware ran."""
+        lines = self.record.read_text().splitlines()
+        return [c for c in lines if c.startswith("M117")]
+
+
 def test_a_command_runs_once_when_the_database_drops_as_the_worker_takes_it(
     tmp_path: Path,
 ):
-    direct = postgres_url()
-    host = Host(tmp_path, direct)
-    host.migrate()
-    record = host.add_simulated_printer("p1", sim_args="--time-scale 0")
-    proxy = TcpProxy(("127.0.0.1", 5432))
-    worker_side = Host(tmp_path, proxy.url("postgresql", urlparse(direct).path,
-                                           user="postgres"))  # fmt: skip
-    ask = lambda text: host.shell(
-        "from printers.models import Printer, QueuedCommand; print(QueuedCommand."
-        f"objects.create(printer=Printer.objects.get(), text={text!r}).pk)"
-    )
-    rows = lambda: dict(
-        (pk, (state, reply))
-        for pk, state, reply in host.query(
-            "SELECT id, state, reply FROM printers_queuedcommand"
-        )
-    )
-    ended = lambda pk: rows().get(pk, ("",))[0] in ("done", "failed")
-    try:
-        with worker_side.running(web=False):
-            wait_for(
-                lambda: host.query("SELECT state FROM printers_printer")[0][0]
-                == "idle",
-                60, "the printer to be ready",
-            )  # fmt: skip
-            # The worker's first write to the request table meets a dropped
-            # connection: the database never sees it.
-            proxy.cut_at(b'UPDATE "printers_queuedcommand"', after_reply=False)
-            script = int(ask(SCRIPT).splitlines()[-1])
-            wait_for(lambda: ended(script), 60, "the script to be answered")
-            assert proxy.blipped.is_set()
-            # A request after it: were the script read again, it would run first.
-            fence = int(ask("M117 fence").splitlines()[-1])
-            wait_for(lambda: ended(fence), 60, "the fence to be answered")
-            log = worker_side.log_tail(400)
-    finally:
-        proxy.close()
+    rig = CommandRig(tmp_path)
+    with rig.running():
+        # The worker's first write to the request table meets a dropped
+        # connection: the database never sees it.
+        rig.proxy.cut_at(b'UPDATE "printers_queuedcommand"', after_reply=False)
+        script = rig.ask(SCRIPT)
+        wait_for(rig.answered(script), 60, "the script to be answered")
+        assert rig.proxy.blipped.is_set()
+        # A request after it: were the script read again, it would run first.
+        fence = rig.ask("M117 fence")
+        wait_for(rig.answered(fence), 60, "the fence to be answered")
+        log = rig.worker_side.log_tail(400)
 
-    assert rows()[script] == ("done", "ok"), log
-    ran = [c for c in record.read_text().splitlines() if c.startswith("M117")]
-    assert ran == ["M117 first", "M117 second", "M117 third", "M117 fence"]
+    assert rig.row(script) == ("done", "ok"), log
+    assert rig.ran() == ["M117 first", "M117 second", "M117 third", "M117 fence"]
     assert "the database does not answer" in log and "answers again" in log
 
 
@@ -151,41 +180,19 @@ def test_a_command_whose_taking_was_committed_unheard_fails_and_says_why(
     """The database commits the worker's mark, and the answer is lost: the worker
     never acted on the row. Once the database is back the row fails, saying why,
     rather than wait for ever; nothing of it ran."""
-    direct = postgres_url()
-    host = Host(tmp_path, direct)
-    host.migrate()
-    record = host.add_simulated_printer("p1", sim_args="--time-scale 0")
-    proxy = TcpProxy(("127.0.0.1", 5432))
-    worker_side = Host(tmp_path, proxy.url("postgresql", urlparse(direct).path,
-                                           user="postgres"))  # fmt: skip
-    ask = lambda text: int(host.shell(
-        "from printers.models import Printer, QueuedCommand; print(QueuedCommand."
-        f"objects.create(printer=Printer.objects.get(), text={text!r}).pk)"
-    ).splitlines()[-1])  # fmt: skip
-    row = lambda pk: host.query(
-        f"SELECT state, reply FROM printers_queuedcommand WHERE id = {pk}"
-    )[0]
-    try:
-        with worker_side.running(web=False):
-            wait_for(
-                lambda: host.query("SELECT state FROM printers_printer")[0][0]
-                == "idle",
-                60, "the printer to be ready",
-            )  # fmt: skip
-            # The mark's transaction commits; the answer to its COMMIT is lost.
-            proxy.cut_at(
-                b'UPDATE "printers_queuedcommand"', after_reply=True, then=b"COMMIT"
-            )
-            script = ask(SCRIPT)
-            wait_for(lambda: row(script)[0] == "failed", 60, "the script to fail")
-            assert proxy.blipped.is_set()
-            fence = ask("M117 fence")
-            wait_for(lambda: row(fence)[0] == "done", 60, "the fence to be answered")
-    finally:
-        proxy.close()
+    rig = CommandRig(tmp_path)
+    with rig.running():
+        # The mark's transaction commits; the answer to its COMMIT is lost.
+        rig.proxy.cut_at(
+            b'UPDATE "printers_queuedcommand"', after_reply=True, then=b"COMMIT"
+        )
+        script = rig.ask(SCRIPT)
+        wait_for(rig.answered(script, "failed"), 60, "the script to fail")
+        assert rig.proxy.blipped.is_set()
+        fence = rig.ask("M117 fence")
+        wait_for(rig.answered(fence, "done"), 60, "the fence to be answered")
 
-    assert row(script)[1] == (
+    assert rig.row(script)[1] == (
         "error: the answer was lost while the database was away; ask again"
     )
-    ran = [c for c in record.read_text().splitlines() if c.startswith("M117")]
-    assert ran == ["M117 fence"]
+    assert rig.ran() == ["M117 fence"]
