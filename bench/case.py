@@ -131,7 +131,7 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
         temperature_interval=0, status_interval=0.2 if grbl else 0,
     )  # fmt: skip
     job = enqueue_job(printer, source)
-    worker = PrinterWorker(printer)
+    worker = PrinterWorker(printer, alone=True)  # as run_printer makes it
     if case.get("log") is False:
         # The logging-cost pair: the same case with the response log switched off.
         worker.log.add = lambda text, kind: 0

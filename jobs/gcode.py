@@ -32,6 +32,7 @@ from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode
 from printers.protocol.checksum import clean_line
 
 T = TypeVar("T")
+C = TypeVar("C")
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -158,9 +159,14 @@ def read_entries(
     start_index: int = 0,
     start_offset: int = 0,
     comment: Callable[[bytes], T | None] | None = None,
-) -> Iterator[Command | T]:
+    command: Callable[[int, str, int], C] | None = None,
+) -> Iterator[Command | C | T]:
     """`iter_commands`, with what *comment* makes of the lines that send nothing
-    (comments, blank lines) from the start on, where it makes something."""
+    (comments, blank lines) from the start on, where it makes something.
+
+    *command* (index, text, end offset) makes what is yielded for a command in
+    place of a Command (the worker's stream makes its Lines so, read once).
+    """
     index = 0
     if start_offset > 0 and _seekable_text(path):
         index = start_index
@@ -176,7 +182,10 @@ def read_entries(
                     yield found
             continue
         if index >= start_index:
-            yield Command(index, text, offset, number)
+            if command is None:
+                yield Command(index, text, offset, number)
+            else:
+                yield command(index, text, offset)
         index += 1
 
 

@@ -107,6 +107,21 @@ class SerialTransport:
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: {error}") from None
 
+    def read_waiting(self) -> bytes:
+        """What has arrived already, without waiting (b"" if nothing has).
+
+        On a raw descriptor one read, no select(): b"" there means nothing came
+        or the device is gone, which the next `read` tells apart.
+        """
+        if self._raw is None:
+            return self.read(0.0)
+        try:
+            return os.read(self._raw, READ_BYTES)
+        except OSError as error:
+            if error.errno in _AGAIN:
+                return b""
+            raise TransportClosed(f"{self._port.port}: {error}") from None
+
     def _ready(self, fd: int, timeout: float, wake: int | None) -> bool:
         """Wait up to *timeout* for *fd* or *wake*; `woken` says whether *wake* was
         readable; True when *fd* is."""

@@ -309,6 +309,9 @@ class MarlinProtocol(ReplyHandling):
         window = self._window
         if window.queued or window.rewinding:
             return False
+        live = window.live
+        if live and len(live) >= self._max_lines():
+            return False  # W2 whatever the line (room_for), so it is not framed
         return self._fits(self._line_for(text.strip()))
 
     def _line_for(self, text: str) -> Line:
@@ -378,6 +381,8 @@ class MarlinProtocol(ReplyHandling):
             for raw in lines:
                 # Undecodable bytes become U+FFFD: junk that only `start` may follow.
                 text = raw.decode("utf-8", errors="replace").strip()
+                if text.startswith("ok N") and self._quick_ok(text):
+                    continue
                 for part in split_merged(text) if text else ():
                     self._handle_line(part)
         self._pump()
@@ -389,9 +394,13 @@ class MarlinProtocol(ReplyHandling):
     def data_to_send(self) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
         self._pump()
-        if self._window.outbox:
+        window = self._window
+        if not window.outbox:
+            if not window.urgent:
+                return b""
+        else:
             self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
-        lines = self._window.take_unwritten()
+        lines = window.take_unwritten()
         for line in lines:
             self._events.append(Sent(line.wire, line.number, line.resend))
         self.lines_sent += len(lines)
@@ -399,15 +408,10 @@ class MarlinProtocol(ReplyHandling):
 
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
-        recovery = self._recovery
         first = self._window.drain_until
-        for deadline in (
-            recovery.deadline(),
-            recovery.error_deadline(),
-            recovery.probe_deadline(),
-        ):
-            if deadline is not None and (first is None or deadline < first):
-                first = deadline
+        deadline = self._recovery.next_deadline()
+        if deadline is not None and (first is None or deadline < first):
+            return deadline
         return first
 
     def handle_timeout(self, now: float) -> None:

@@ -359,6 +359,15 @@ class Recovery:
 
     # -- timeouts --------------------------------------------------------------------
 
+    def next_deadline(self) -> float | None:
+        """The first of T1, T6 and R1b/R8 (None: none is due), asked every turn."""
+        first = None if self._error_at is None else self.error_deadline()
+        if self._window.live and not self.user_wait:
+            for deadline in (self.deadline(), self.probe_deadline()):
+                if deadline is not None and (first is None or deadline < first):
+                    first = deadline
+        return first
+
     def probe_deadline(self) -> float | None:
         """T6: when the oldest live line's ok is late enough to send a probe."""
         if self.user_wait:

@@ -7,6 +7,7 @@ Recovery and the window that MarlinProtocol owns.
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from printers.protocol.events import (
@@ -16,7 +17,12 @@ from printers.protocol.events import (
     Received,
     TemperatureReport,
 )
-from printers.protocol.marlin_responses import Reply, ReplyKind, parse_response
+from printers.protocol.marlin_responses import (
+    PLAIN_OK,
+    Reply,
+    ReplyKind,
+    parse_response,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -24,6 +30,10 @@ if TYPE_CHECKING:
     from printers.protocol.marlin import MarlinProtocol
 
 __all__ = ["ReplyHandling"]
+
+#: ADVANCED_OK's reply as Marlin prints it (`_quick_ok`); B, the free command
+#: slots, is the second number group.
+_ADVANCED_OK_LINE = re.compile(r"ok N(-?\d+) P\d+ B(\d+)")
 
 
 class ReplyHandling:
@@ -42,14 +52,43 @@ class ReplyHandling:
         self._HANDLERS.get(reply.kind, ReplyHandling._on_information)(self, reply)
         self._previous = reply
 
+    def _quick_ok(self: MarlinProtocol, text: str) -> bool:
+        """`ok N<n> P<p> B<b>`, the reply to nearly every line of a job: handled
+        as `_handle_line` and `_on_ok` would, without classifying it first. False
+        (nothing done) for any other line."""
+        match = _ADVANCED_OK_LINE.fullmatch(text)
+        if match is None:
+            return False
+        self._file_list = False
+        self._events.append(Received(text, LineKind.ACK))
+        self._ok(int(match[1]), int(match[2]), advanced=True, temperatures=False)
+        # What the resend rules ask of the line before a Resend is its kind.
+        self._previous = PLAIN_OK
+        return True
+
     def _on_ok(self: MarlinProtocol, reply: Reply) -> None:
-        self._advanced = self._advanced or reply.advanced
         if reply.event is not None:
             self._events.append(reply.event)
-        if reply.buffer_free is not None and not self._recovery.awaiting_ok:
-            self._max_b = max(self._max_b, reply.buffer_free)
         temperatures = isinstance(reply.event, TemperatureReport)
-        self._recovery.ok(reply.number, temperatures=temperatures)
+        self._ok(
+            reply.number,
+            reply.buffer_free,
+            advanced=reply.advanced,
+            temperatures=temperatures,
+        )
+
+    def _ok(
+        self: MarlinProtocol,
+        number: int | None,
+        buffer_free: int | None,
+        *,
+        advanced: bool,
+        temperatures: bool,
+    ) -> None:
+        self._advanced = self._advanced or advanced
+        if buffer_free is not None and not self._recovery.awaiting_ok:
+            self._max_b = max(self._max_b, buffer_free)
+        self._recovery.ok(number, temperatures=temperatures)
 
     def _on_resend(self: MarlinProtocol, reply: Reply) -> None:
         self._recovery.resend(reply, self._previous)

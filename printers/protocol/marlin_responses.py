@@ -22,6 +22,7 @@ from printers.protocol.events import (
 )
 
 __all__ = [
+    "PLAIN_OK",
     "Reply",
     "ReplyKind",
     "parse_response",
@@ -93,7 +94,8 @@ _ACK = LineKind.ACK
 _IMPORTANT = LineKind.IMPORTANT
 _RESPONSE = LineKind.RESPONSE
 
-_PLAIN_OK = Reply(ReplyKind.OK, _ACK, "ok")
+#: A plain `ok` (shared: a Reply is never changed).
+PLAIN_OK = Reply(ReplyKind.OK, _ACK, "ok")
 _WAIT = Reply(ReplyKind.WAIT, _ACK, "wait")
 
 _OK_NUMBER = re.compile(r"N?(-?\d+)$")
@@ -182,10 +184,10 @@ def split_merged(line: str) -> list[str]:
 def parse_response(line: str) -> Reply:
     """Classify one firmware line (without its newline) into a Reply."""
     if line == "ok":
-        return _PLAIN_OK
+        return PLAIN_OK
     text = line.strip()
     if text == "ok":
-        return _PLAIN_OK
+        return PLAIN_OK
     if text.startswith("ok "):
         return _parse_ok(text)
     lower = text.lower()

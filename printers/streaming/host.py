@@ -294,7 +294,9 @@ class StreamHost:
                     return True
             self._pending[stream.id] = line
         stream.move(S.READ_CURSOR)
-        return True
+        # Straight on, not through advance(): nothing above changed the queues,
+        # so the stream is still the active one (the same for the chains below).
+        return self._on_read_cursor(stream, now)
 
     def _on_read_cursor(self, stream: Stream, now: float) -> bool:
         line = self._pending[stream.id]
@@ -303,6 +305,7 @@ class StreamHost:
         elif line is self._cleared or self.protocol.can_send(line.text):
             self._cleared = None
             stream.move(S.SEND_GCODE_COMMAND)
+            return self._on_send_gcode_command(stream, now)
         else:
             stream.move(S.WAIT_FOR_ACK)
             return False
@@ -351,7 +354,7 @@ class StreamHost:
             return False
         self._cleared = line
         stream.move(S.READY_TO_READ_CURSOR)
-        return True
+        return self._on_ready_to_read_cursor(stream, now)
 
     def _on_resend_gcode_command(self, stream: Stream, now: float) -> bool:
         stream.move(S.WAIT_FOR_ACK)

@@ -23,7 +23,7 @@ from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
 from printers.protocol.pacing import Pacer
-from printers.streaming import StreamHost
+from printers.streaming import QueueState, StreamHost
 from printers.transport import (
     SerialTransport,
     TransportClosed,
@@ -73,7 +73,10 @@ class PrinterWorker(PortHandling, Reactions):
         *,
         clock: Callable[[], float] = time.monotonic,
         owner: str = "",
+        alone: bool = False,
     ) -> None:
+        """*alone*: the worker has its thread's database connection to itself
+        (a process of its own, run_printer): see `Wakeups.quiet`."""
         self.printer = printer
         self.config = LinkConfig.from_printer(printer)
         self.clock = clock
@@ -84,7 +87,7 @@ class PrinterWorker(PortHandling, Reactions):
         #: PostgreSQL's notifications wake the loop when something is written for
         #: the printer; while they do, requests and jobs are read only this often
         #: (writes keep the poll's pace).
-        self.wakeups = Wakeups(printer.pk)
+        self.wakeups = Wakeups(printer.pk, alone=alone)
         self.fallback_poll_seconds = max(
             self.poll_seconds, settings.PRINTHOST_FALLBACK_POLL_SECONDS
         )
@@ -215,14 +218,15 @@ class PrinterWorker(PortHandling, Reactions):
             self._tick_offline(now)
             return
         now, wait = self._pace(now, self._wait_time(now))
+        wake_by = now + wait
         self.lease.ensure(now)
         try:
             data = self.transport.read(wait, wake=self.wakeups.fileno())
             now = self.clock()
             if self.wakeups.take(readable=self.transport.woken):
-                self.next_poll = self.next_read = now
+                self.next_poll = self.next_read = wake_by = now
             if data and self.pacer.modelled:
-                data, now = self._rest_of_line(data, now)
+                data, now = self._rest_of_line(data, now, wake_by)
         except TransportClosed as error:
             self.port_lost(str(error))
             return
@@ -260,8 +264,12 @@ class PrinterWorker(PortHandling, Reactions):
         """Steps 4 and 5: advance the streams and write what is ready, in one call."""
         if self.transport is None:
             return
-        self.protocol.printing = self.host.printing
-        self.protocol.writing_file = self.sd.writing()
+        stream = self.host.current_stream
+        self.protocol.printing = stream is not None and self.host.printing
+        # Only a stream with the printer's side (its SD card) can be writing a file.
+        self.protocol.writing_file = (
+            stream is not None and stream.printer_side is not None and self.sd.writing()
+        )
         self.host.advance(now)
         self.handle_host_events(now)
         data = self.protocol.data_to_send()
@@ -284,6 +292,7 @@ class PrinterWorker(PortHandling, Reactions):
         read = now >= self.next_read
         if read:
             self.next_read = now + self._read_interval()
+            read = not self.wakeups.quiet(now)
         self.poll_temperature(now)
         try:
             if not self.lease.away:
@@ -395,16 +404,20 @@ class PrinterWorker(PortHandling, Reactions):
         later = self.clock()
         return later, max(0.0, wait - (later - now))
 
-    def _rest_of_line(self, data: bytes, now: float) -> tuple[bytes, float]:
+    def _rest_of_line(
+        self, data: bytes, now: float, wake_by: float
+    ) -> tuple[bytes, float]:
         """A read that cut a reply line: wait for its rest in this same turn (P4 in
-        printers/protocol/pacing.py) rather than take a whole turn for each part."""
+        printers/protocol/pacing.py) rather than take a whole turn for each part.
+        Never past *wake_by*, the loop's next deadline."""
         self.pacer.received(data, now)
         until = self.pacer.rest_at(now)
         if until is None:
             return data, now
+        until = min(until, wake_by)
         if until > now:
-            time.sleep(min(until - now, self._wait_time(now)))
-        more = self.transport.read(0.0)
+            time.sleep(until - now)
+        more = self.transport.read_waiting()
         now = self.clock()
         if more:
             self.pacer.received(more, now)
@@ -439,11 +452,11 @@ class PrinterWorker(PortHandling, Reactions):
         if self.halted:
             self.status.set_state(Printer.State.ERROR, self.halted)
             return
-        queue = self.host.queue_state.value
+        queue = self.host.queue_state
         waiting = self.prompts.waiting_for()
-        if queue == "processing":
+        if queue is QueueState.PROCESSING:
             self.status.set_state(Printer.State.PRINTING, waiting)
-        elif queue == "paused":
+        elif queue is QueueState.PAUSED:
             self.status.set_state(Printer.State.PAUSED, waiting)
         elif self.waitstart:
             self.status.set_state(

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 from django.db import connections, transaction
@@ -20,7 +21,6 @@ from printers.models import ResponseLine
 if TYPE_CHECKING:
     from collections.abc import Callable
     from contextlib import AbstractContextManager
-    from datetime import datetime
 
     from django.db.backends.base.base import BaseDatabaseWrapper
     from django.db.backends.utils import CursorWrapper
@@ -34,10 +34,11 @@ FLUSH_SECONDS = 0.25
 FLUSH_LINES = 1000
 #: Lines held in memory while the database is away (about 50 MB at most).
 HELD_LINES = 200_000
-#: Lines logged within this long of each other share one timestamp (s): a line and
-#: its ok come within a millisecond, and each distinct time costs a datetime and
-#: its conversion for the database.
-STAMP_SECONDS = 0.001
+#: Lines logged within this long of each other share one timestamp (s): each
+#: distinct time costs a datetime and its conversion for the database, and a line
+#: and its ok come a few milliseconds apart at most (a hundredth of a second is
+#: finer than any log view shows).
+STAMP_SECONDS = 0.01
 
 
 class ResponseLog:
@@ -83,7 +84,8 @@ class ResponseLog:
         """Now, as the time of a line (one datetime for lines within STAMP_SECONDS)."""
         wall = time.time()
         if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
-            self._stamp_wall, self._stamp_at = wall, timezone.now()
+            # timezone.now() as the settings have it (USE_TZ), from the same reading.
+            self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
         return self._stamp_at
 
     def _drop_oldest(self) -> None:

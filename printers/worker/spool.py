@@ -9,7 +9,7 @@ from django.db.models import F
 from django.utils import timezone
 
 from jobs import history, hostcache
-from jobs.gcode import Command, command_of, read_entries
+from jobs.gcode import command_of, read_entries
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
 from printers.reaper import LAST_SAVED
@@ -154,14 +154,13 @@ def file_entries(
     commands leave out) as ObjectMarks. Only lines that send nothing are looked at
     for a marker, with one bytes search each, so the stream reads as fast as before.
     """
-    entries = read_entries(
-        path, start_index=start_index, start_offset=start_offset, comment=object_mark
+    return read_entries(
+        path,
+        start_index=start_index,
+        start_offset=start_offset,
+        comment=object_mark,
+        command=Line,
     )
-    for entry in entries:
-        if isinstance(entry, Command):
-            yield Line(entry.index, entry.text, entry.end_offset)
-        else:
-            yield entry
 
 
 def _commands(text: str) -> list[str]:

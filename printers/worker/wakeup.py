@@ -8,7 +8,13 @@ serial port. It reads the database when told to, and otherwise only every
 idle farm spent, on the worker hosts and on PostgreSQL.
 
 Without PostgreSQL (SQLite) there are no notifications: `fileno()` is None and the
-worker polls every `PRINTHOST_POLL_SECONDS` as before. A notification can be lost
+worker polls every `PRINTHOST_POLL_SECONDS`. Before each poll's reads it asks
+SQLite whether anyone else wrote since the last one (`quiet()`: `PRAGMA
+data_version` counts other connections' commits); when nobody did, the
+requests, the jobs and the lease are as they were, and the reads are skipped
+(at most FALLBACK_SECONDS in a row). A worker that shares its connection (tests
+drive one in their own thread) counts that connection's writes too
+(`total_changes`), its own among them. A notification can be lost
 (the connection dropped, the database restarted); a new connection is LISTENed on
 again and counts as a wake-up, and the fallback poll bounds any other miss.
 """
@@ -21,12 +27,14 @@ from typing import Any
 
 from django.db import connections
 
-__all__ = ["Wakeups", "channel_for"]
+__all__ = ["SqliteWrites", "Wakeups", "channel_for"]
 
 logger = logging.getLogger("printhost.worker")
 
 #: After a failed LISTEN (the database away) the next try waits this long (s).
 RETRY_SECONDS = 1.0
+#: SQLite: the poll reads at least this often even when nothing was written (s).
+FALLBACK_SECONDS = 1.0
 
 
 def channel_for(printer_id: int) -> str:
@@ -37,7 +45,9 @@ def channel_for(printer_id: int) -> str:
 class Wakeups:
     """LISTEN for one printer on the worker's database connection."""
 
-    def __init__(self, printer_id: int, *, alias: str = "default") -> None:
+    def __init__(
+        self, printer_id: int, *, alias: str = "default", alone: bool = False
+    ) -> None:
         self.channel = channel_for(printer_id)
         self.alias = alias
         #: The psycopg connection LISTENed on (None: none yet, or not PostgreSQL).
@@ -46,7 +56,10 @@ class Wakeups:
         self._heard = False
         self._retry_at = 0.0
         #: Only PostgreSQL notifies (asked once: the loop asks for fileno() every turn).
-        self._notifying = connections[alias].vendor == "postgresql"
+        vendor = connections[alias].vendor
+        self._notifying = vendor == "postgresql"
+        #: SQLite: what was written since the poll last read (`quiet()`).
+        self._writes = SqliteWrites(alone=alone) if vendor == "sqlite" else None
 
     @property
     def listening(self) -> bool:
@@ -110,3 +123,45 @@ class Wakeups:
                 self._heard = True
         heard, self._heard = self._heard, False
         return heard
+
+    def quiet(self, now: float) -> bool:
+        """SQLite: nobody wrote since the poll last read (SqliteWrites), so it
+        need not read now. Always False on other databases."""
+        if self._writes is None:
+            return False
+        return self._writes.quiet(connections[self.alias].connection, now)
+
+
+class SqliteWrites:
+    """Whether an SQLite database was written since the last look.
+
+    `PRAGMA data_version` changes when another connection commits; a worker
+    that is not *alone* on its connection (a test drives it in its own thread)
+    counts that connection's changes too (`total_changes`).
+    """
+
+    def __init__(self, *, alone: bool) -> None:
+        #: Nobody else writes on the worker's connection (a process of its
+        #: own): the writes there are the worker's, never a request.
+        self.alone = alone
+        #: The connection, its data_version and total_changes at the last look.
+        self._seen: tuple[Any, int, int] | None = None
+        self._read_at = float("-inf")
+
+    def quiet(self, raw: Any, now: float) -> bool:
+        """Nothing written since the last call on *raw* (sqlite3.Connection) and
+        a read within FALLBACK_SECONDS: the caller may skip its reads. False
+        for a new connection, or one that cannot answer."""
+        seen, self._seen = self._seen, None
+        if raw is None:
+            return False
+        try:
+            (version,) = raw.execute("PRAGMA data_version").fetchone()
+            self._seen = (raw, version, 0 if self.alone else raw.total_changes)
+        except Exception as error:  # a closed connection: read as usual
+            logger.debug("data_version: %r", error)
+            return False
+        if self._seen != seen or now - self._read_at >= FALLBACK_SECONDS:
+            self._read_at = now
+            return False
+        return True

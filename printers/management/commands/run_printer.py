@@ -37,7 +37,7 @@ class Command(BaseCommand):
             port.acquire()
         except PortBusy as error:
             raise CommandError(f"printer {slug}: {error}") from None
-        self.worker = PrinterWorker(printer)
+        self.worker = PrinterWorker(printer, alone=True)
         # Holding the port, the worker may drive on while the database is away.
         self.worker.lease.keep_while_away = True
         signal.signal(signal.SIGTERM, self.on_signal)
