@@ -393,7 +393,11 @@ class QueuedCommand(models.Model):
 class ResponseLine(models.Model):
     """One line of Repetier's response log: ids increase per printer, `kind` is a filter bit."""
 
-    printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
+    # No index of its own: the unique (printer, seq) below starts with it, and
+    # every line stored would keep a second index up to date for nothing.
+    printer = models.ForeignKey(
+        Printer, on_delete=models.CASCADE, related_name="+", db_index=False
+    )
     seq = models.BigIntegerField()
     time = models.DateTimeField()
     text = models.TextField()

@@ -156,8 +156,10 @@ class ObjectFilter:
         #: Where the head is: the file's position unless moves were dropped.
         self._head = dict(self._file)
         self._lag = 0.0
-        self._file_f = ""
-        self._head_f = ""
+        #: The feedrate the file set last and the one the head got (None: none yet),
+        #: as numbers: written out (`_number`) only when an F must be sent again.
+        self._file_f: float | None = None
+        self._head_f: float | None = None
         self._skipped_any = False
         self._prev = Line(-1, "", 0)
 
@@ -203,7 +205,7 @@ class ObjectFilter:
             value = given["E"]
             self._file_e += value - self._file_e if self._absolute_e else value
         if "F" in given:
-            self._file_f = self._head_f = _number(given["F"])
+            self._file_f = self._head_f = given["F"]
         file, head = self._file, self._head
         for axis in _XYZ:
             if axis in given:
@@ -283,7 +285,7 @@ class ObjectFilter:
             forward = given["E"] - self._file_e if self._absolute_e else given["E"]
             self._file_e += forward
         if "F" in given:
-            self._file_f = _number(given["F"])
+            self._file_f = given["F"]
         target = {}
         for axis in _XYZ:
             if axis in given:
@@ -303,8 +305,12 @@ class ObjectFilter:
         if "E" in given and self._absolute_e and self._lag:
             yield self._added(f"G92 E{_number(file_before)}")
             self._lag = 0.0
-        if "F" not in given and self._head_f != self._file_f and self._file_f:
-            yield self._added(f"G1 F{self._file_f}")
+        if (
+            "F" not in given
+            and self._head_f != self._file_f
+            and self._file_f is not None
+        ):
+            yield self._added(f"G1 F{_number(self._file_f)}")
         self._head.update(target)
         if "F" in given:
             self._head_f = self._file_f
