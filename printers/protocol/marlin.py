@@ -351,12 +351,14 @@ class MarlinProtocol(ReplyHandling):
                 f"firmware takes at most {self._max_length} and truncates the rest"
             )
         window = self._window
-        if self.in_flight and (
-            window.queued or window.rewinding or not self._fits(line)
-        ):
+        fits = not window.queued and not window.rewinding and self._fits(line)
+        if not fits and self.in_flight:
             raise LocalProtocolError(f"window full: cannot send {line.text!r} now")
-        self._window.enqueue(line)
-        self._pump()
+        if fits and not (line.numbered and window.need_m110):
+            window.go_live(line)  # what enqueue() and the pump would do, at once
+        else:
+            window.enqueue(line)
+            self._pump()
 
     def send_emergency(self, text: str, now: float) -> None:
         """Write *text* unnumbered ahead of everything unwritten, ignoring the window."""

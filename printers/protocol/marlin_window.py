@@ -253,6 +253,16 @@ class LineWindow:
         if self.rewind_next >= self.rewind_end:
             self.rewind_tags.clear()
 
+    def go_live(self, line: Line) -> None:
+        """*line*, framed, goes live now: the pump's step for the head of an empty
+        queue, for a line the caller found room for (room_for) with nothing queued,
+        re-sent or owed (an M110) before it."""
+        self._number(line)
+        self.live.append(line)
+        self.outbox.append(line)
+        if self.rewind_tags:
+            self.rewind_tags.clear()
+
     def _peek(self) -> Line | None:
         if self.rewind_next < self.rewind_end:
             n = self.rewind_next
