@@ -291,6 +291,42 @@ def test_auto_switches_to_a_window_of_b_plus_one_after_advanced_ok() -> None:
     assert not proto.can_send("G1 X1")
 
 
+@pytest.mark.parametrize(
+    "reply",
+    ["ok N2 P15 B3", "ok N1 P14 B0", "ok N3 P15 B7", "ok N9 P15 B3", "ok N-1 P1 B1"],
+)
+def test_an_advanced_ok_taken_quickly_does_what_classifying_it_does(reply) -> None:
+    """`ok N<n> P<p> B<b>` skips parse_response (_quick_ok): same events, acks,
+    window and what a Resend after it would see."""
+    quick, classified = (
+        MarlinProtocol(checksums="always", flow="buffered", bufsize=5) for _ in range(2)
+    )
+    for proto in (quick, classified):
+        proto.send("G1 X0", 0.0, tag=0)
+        proto.data_to_send()
+        proto.receive_data(b"ok\n", 0.1)  # the M110's: lines N1.. go now
+        for n in range(1, 4):
+            proto.send(f"G1 X{n}", 0.2, tag=n)
+        proto.data_to_send()
+        events(proto)
+    quick.receive_data(f"{reply}\n".encode(), 0.5)
+    classified._handle_line(reply)
+    classified._pump()
+    assert events(quick) == events(classified)
+    assert quick.can_send("G1 X9") == classified.can_send("G1 X9")
+    for proto in (quick, classified):
+        if proto.can_send("G1 X9"):
+            proto.send("G1 X9", 0.6)
+    assert quick.data_to_send() == classified.data_to_send()
+    assert (quick.lines_acked, quick.in_flight, quick.flow_mode) == (
+        classified.lines_acked,
+        classified.in_flight,
+        classified.flow_mode,
+    )
+    assert quick._max_b == classified._max_b
+    assert quick._previous.kind is classified._previous.kind
+
+
 def test_advanced_window_never_outgrows_the_byte_budget() -> None:
     proto = MarlinProtocol(checksums="always", rx_buffer=63)
     firmware = TinyMarlin(advanced=True)
