@@ -298,6 +298,9 @@ class SdCardWatch:
                 origin=job.origin,
                 uploaded_by_id=job.uploaded_by_id,
             )
+        # Written on the worker's own connection, which an SQLite poll does not
+        # count as news (Wakeups.quiet): the queue is looked at without a poll.
+        self.worker.look_for_jobs = True
         self.worker.note(
             f"job {printing.pk} prints {job.sd_name} from the SD card next"
         )
