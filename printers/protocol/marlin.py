@@ -397,11 +397,10 @@ class MarlinProtocol(ReplyHandling):
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
         self._pump()
         window = self._window
-        if not window.outbox:
-            if not window.urgent:
-                return b""
-        else:
+        if window.outbox:
             self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
+        elif not window.urgent:
+            return b""
         lines = window.take_unwritten()
         for line in lines:
             self._events.append(Sent(line.wire, line.number, line.resend))

@@ -84,7 +84,7 @@ class ResponseLog:
         """Now, as the time of a line (one datetime for lines within STAMP_SECONDS)."""
         wall = time.time()
         if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
-            # timezone.now() as the settings have it (USE_TZ), from the same reading.
+            # Aware UTC, as timezone.now() is with USE_TZ (always on), from one reading.
             self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
         return self._stamp_at
 

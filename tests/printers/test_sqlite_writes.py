@@ -35,30 +35,24 @@ def test_nothing_written_is_quiet_after_the_first_look(database) -> None:
     assert writes.quiet(mine, 0.2)
 
 
-def test_another_connections_commit_ends_the_quiet(database) -> None:
+@pytest.mark.parametrize(
+    ("writer", "alone", "quiet_after"),
+    [
+        ("other", True, False),  # the web process queued a request
+        ("mine", True, True),  # the worker's own log batch, alone on its connection
+        ("mine", False, False),  # a test's request on the connection it shares
+    ],
+)
+def test_a_write_ends_the_quiet_unless_it_is_the_lone_workers_own(
+    database, writer, alone, quiet_after
+) -> None:
     mine, other = database
-    writes = SqliteWrites(alone=True)
+    writes = SqliteWrites(alone=alone)
     writes.quiet(mine, 0.0)
-    other.execute("INSERT INTO requests (text) VALUES ('M112')")
-    assert not writes.quiet(mine, 0.1)
-    assert writes.quiet(mine, 0.2)
-
-
-def test_a_worker_alone_on_its_connection_ignores_its_own_writes(database) -> None:
-    mine, _ = database
-    writes = SqliteWrites(alone=True)
-    writes.quiet(mine, 0.0)
-    mine.execute("INSERT INTO requests (text) VALUES ('log line')")
-    assert writes.quiet(mine, 0.1)
-
-
-def test_a_shared_connection_counts_every_write_on_it(database) -> None:
-    mine, _ = database
-    writes = SqliteWrites(alone=False)
-    writes.quiet(mine, 0.0)
-    mine.execute("INSERT INTO requests (text) VALUES ('G28')")  # a test's request
-    assert not writes.quiet(mine, 0.1)
-    assert writes.quiet(mine, 0.2)
+    connection = mine if writer == "mine" else other
+    connection.execute("INSERT INTO requests (text) VALUES ('M112')")
+    assert writes.quiet(mine, 0.1) is quiet_after
+    assert writes.quiet(mine, 0.2)  # nothing new since
 
 
 def test_the_poll_reads_at_least_every_fallback_interval(database) -> None:
