@@ -1,4 +1,9 @@
-"""Events the firmware protocols hand to the worker: small frozen value objects."""
+"""Events the firmware protocols hand to the worker: small value objects.
+
+Frozen, except the three every line brings (Sent, Received, Ack): a frozen
+dataclass sets each field through object.__setattr__, which made making them
+three times as dear. Nothing changes an event once made.
+"""
 
 from __future__ import annotations
 
@@ -47,7 +52,7 @@ class Event:
     __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Sent(Event):
     """A line went to the wire (without the newline), as the firmware will see it."""
 
@@ -58,7 +63,7 @@ class Sent(Event):
     resend: bool = False
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Received(Event):
     """A whole line came from the firmware; emitted for every line, before its meaning."""
 
@@ -66,7 +71,7 @@ class Received(Event):
     kind: LineKind
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Ack(Event):
     """The firmware accepted the command sent with *tag* (Marlin `ok`, GRBL `ok`)."""
 

@@ -150,9 +150,13 @@ REQUESTS_FROM: dict[CommandState, frozenset[CommandState]] = {
 }
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Line:
-    """One command of a stream: its index among the stream's commands and file offset."""
+    """One command of a stream: its index among the stream's commands and file offset.
+
+    Not frozen: one is made for every line of a file, and a frozen dataclass sets
+    each field through object.__setattr__. Nothing changes a Line once made.
+    """
 
     index: int
     text: str

@@ -208,7 +208,9 @@ class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
         if self.transport is None:
             self._tick_offline(now)
             return
-        now, wait = self._pace(now, self._wait_time(now))
+        protocol = self.protocol
+        deadline = protocol.next_deadline()
+        now, wait = self._pace(now, self._wait_time(now, deadline))
         wake_by = now + wait
         self.lease.ensure(now)
         try:
@@ -221,17 +223,20 @@ class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
         except TransportClosed as error:
             self.port_lost(str(error))
             return
-        protocol = self.protocol
         protocol.receive_data(data, now)
         self.handle_protocol_events(now)
         if data:
             self.link.received(len(data))
             if self.pacer.sampling(now):
                 self.pacer.acknowledged(protocol.bytes_in_flight, now)
-        deadline = protocol.next_deadline()
+        # The deadline read before the wait, asked again only once it has passed:
+        # what was read meanwhile moves deadlines on, and one it brought nearer
+        # (a probe no longer held off by busy:) makes the next wait zero.
         if deadline is not None and now >= deadline:
-            protocol.handle_timeout(now)
-            self.handle_protocol_events(now)
+            deadline = protocol.next_deadline()
+            if deadline is not None and now >= deadline:
+                protocol.handle_timeout(now)
+                self.handle_protocol_events(now)
         self.pump(now)
         # Database work comes after the window was refilled, while those bytes travel.
         if now >= self.next_poll:
@@ -305,11 +310,10 @@ class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
             self.pacer.received(more, now)
         return data + more, now
 
-    def _wait_time(self, now: float) -> float:
+    def _wait_time(self, now: float, deadline: float | None) -> float:
         # The log's batches ride on the turns (flush_if_due runs every turn): a
         # wake-up of their own would be one more a quarter second.
         wake = self.next_poll
-        deadline = self.protocol.next_deadline()
         if deadline is not None:
             wake = min(wake, deadline)
         return max(0.0, min(wake - now, self._turn_seconds()))
