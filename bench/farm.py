@@ -453,7 +453,11 @@ def _factory(folder: Path, config: FarmConfig, farms: list[Farm]) -> Callable:
     """What a fault test asks for (`make_farm`): a full-size farm, set up."""
 
     def make(**changes: object) -> Farm:
-        values = {**config.__dict__, "jobs": config.printers, "lease_seconds": 3.0}
+        # One job a printer, all printing at once: the tests cut every print.
+        values = {
+            **config.__dict__, "jobs": config.printers, "mixed": False,
+            "lease_seconds": 3.0,
+        }  # fmt: skip
         farm = Farm(folder, FarmConfig(**{**values, **changes}))
         farms.append(farm)
         farm.setup()

@@ -107,13 +107,20 @@ def fleet(printers: int, hosts: int) -> list[PrinterSpec]:
 
 
 def job_mix(
-    count: int, printers: list[PrinterSpec], *, long: bool = False
+    count: int, printers: list[PrinterSpec], *, long: bool = False, mixed: bool = True
 ) -> list[JobSpec]:
     """*count* jobs cycling through `ASKS` (with *long*, every third job's file is one
-    of `LONG_FILES`); each is met by at least one of *printers*."""
+    of `LONG_FILES`); each is met by at least one of *printers*.
+
+    Not *mixed*: no job asks anything and none is `wide`, so every printer can take
+    any job and one job a printer all print at once (a fault test cuts them all
+    mid-print; with requirements a few jobs wait for a busy printer that meets them).
+    """
     jobs = []
     for j in range(count):
         file, asks = ASKS[j % len(ASKS)]
+        if not mixed:
+            file, asks = (ASKS[0][0] if file == "wide" else file), {}
         if long and j % 3 == 2 and file != "wide":
             file = LONG_FILES[(j // 3) % len(LONG_FILES)]
         job = JobSpec(f"job{j + 1:02d}-{Path(file).stem}.gcode", file, dict(asks))

@@ -65,6 +65,8 @@ class FarmConfig:
     lease_seconds: float = 3.0
     #: Every third job prints one of the long real files (the full-size farm).
     long_files: bool = False
+    #: Jobs ask for materials, nozzles, profiles, tags, volumes (`fleet.job_mix`).
+    mixed: bool = True
     #: Every process reaches PostgreSQL / Redis through a proxy a test can cut.
     proxy_postgres: bool = False
     proxy_redis: bool = False
@@ -83,7 +85,7 @@ class Farm:
         self.config = config
         self.printers: list[PrinterSpec] = fleet(config.printers, config.hosts)
         self.jobs: list[JobSpec] = job_mix(
-            config.jobs, self.printers, long=config.long_files
+            config.jobs, self.printers, long=config.long_files, mixed=config.mixed
         )
         self.host_names = [f"shelf-{k + 1}" for k in range(config.hosts)]
         self.sims: dict[str, SimulatorProcess] = {}
