@@ -218,6 +218,12 @@ class Lease:
         if now >= self.renew_at or self.away_since is not None:
             self.take(now)
 
+    def renew_now(self, now: float) -> None:
+        """Renew at once, even before the next try after an outage is due (a
+        stopping worker has no later turn to wait for)."""
+        self._retry_at = 0.0
+        self.take(now)
+
     def ensure(self, now: float) -> None:
         """Before touching the port: renew at once if the lease may have run out.
 

@@ -159,10 +159,15 @@ class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
             self.stop()
 
     def stop(self) -> None:
-        """Save everything, close the port, give the printer back."""
+        """Save everything, close the port, give the printer back.
+
+        With the database away the port is closed all the same; what could not be
+        written is left to the next worker, which settles the run from the journal.
+        """
         if self.lease.lost:
             return
         try:
+            self.settle_held()
             stream = self.host.current_stream
             if stream is not None and stream.ref is not None:
                 self.stop_streams(
@@ -174,6 +179,16 @@ class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
             self.log.flush()
         except LeaseLost as error:
             self.abandon(str(error))
+            return
+        except (DatabaseAway, *UNREACHABLE) as error:
+            self._close()
+            self.journal.close()
+            logger.warning(
+                "%s: stopped with the database away (%s): %d response lines and "
+                "%d other writes were not stored; the next worker settles the run "
+                "from the journal",
+                self.printer.slug, error, self.log.waiting, len(self.held),
+            )  # fmt: skip
             return
         self.journal.close()
         self.lease.release()

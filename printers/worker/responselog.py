@@ -68,6 +68,11 @@ class ResponseLog:
         #: flush asks the table before it writes.
         self._in_doubt = False
 
+    @property
+    def waiting(self) -> int:
+        """Lines logged and not stored yet."""
+        return len(self._buffer)
+
     def add(self, text: str, kind: int) -> int:
         """Log one line; returns its id.
 

@@ -95,6 +95,25 @@ class DatabaseTurns:
         self.save_progress()
         self.status.save_if_due(now, force=True)
 
+    def settle_held(self: PrinterWorker) -> None:
+        """Before the worker stops: if it holds writes from an outage and the
+        database answers now, write them first, in order, as a turn would have.
+
+        Else a run that ended during the outage (completed, its bed to be cleared)
+        would be left to the journal and shown interrupted, and a request answered
+        then would be failed as never answered. DatabaseAway if it still does not
+        answer.
+        """
+        if not (self.held or self.lease.away or self.lease.recovered):
+            return
+        now = self.clock()
+        try:
+            self.lease.renew_now(now)
+        except UNREACHABLE as error:
+            raise self.lease.unreachable(error) from None
+        if self.lease.recovered:
+            self.write_held(now)
+
     def _tick_offline(self: PrinterWorker, now: float) -> None:
         if not self.stay_offline and now >= self.next_connect:
             self.connect(now)

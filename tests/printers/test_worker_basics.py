@@ -153,3 +153,54 @@ def test_an_offline_worker_writes_what_it_held_once_the_database_is_back(make_pr
     )  # fmt: skip
     assert not worker.held
     worker.stop()
+
+
+def test_a_worker_stopped_once_the_database_is_back_writes_what_it_held_first(
+    make_printer,
+):
+    """The database came back, and the worker is stopped before a turn wrote what
+    it held: stop() writes it first. Left unwritten, the answer of a request the
+    printer did answer would be failed by the next worker as never answered."""
+    printer = make_printer(port="/nonexistent")
+    worker = PrinterWorker(printer)
+    worker.lease.keep_while_away = True
+    worker.start()
+    worker.stay_offline = True
+    row = QueuedCommand.objects.create(printer=printer, text="M114", state="sent")
+    worker.lease.unreachable(OperationalError("server closed the connection"))
+    answer = QueuedCommand.objects.filter(pk=row.pk).update
+    worker.hold_or_run(partial(answer, state="done", reply="ok"))
+    assert worker.held
+
+    worker.stop()
+
+    row.refresh_from_db()
+    assert (row.state, row.reply) == ("done", "ok")
+    assert not worker.held
+    assert Printer.objects.get(pk=printer.pk).lease_owner == ""
+
+
+def test_a_worker_stopped_with_the_database_away_closes_its_port_and_says_so(
+    make_printer, caplog
+):
+    """Still away at stop(): the port is closed all the same, nothing is written,
+    and the log says what was left to the next worker."""
+    printer = make_printer(port="/nonexistent")
+    worker = PrinterWorker(printer)
+    worker.lease.keep_while_away = True
+    worker.start()
+    worker.stay_offline = True
+    worker.lease.unreachable(OperationalError("server closed the connection"))
+    worker.hold_or_run(lambda: None)
+
+    def refuse(now: float) -> None:
+        raise worker.lease.unreachable(OperationalError("connection refused"))
+
+    worker.lease.renew_now = refuse
+    with caplog.at_level("WARNING", logger="printhost.worker"):
+        worker.stop()
+
+    assert worker.transport is None
+    assert len(worker.held) == 1
+    assert "stopped with the database away" in caplog.text
+    assert "1 other writes were not stored" in caplog.text
