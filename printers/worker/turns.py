@@ -107,10 +107,7 @@ class DatabaseTurns:
         if not (self.held or self.lease.away or self.lease.recovered):
             return
         now = self.clock()
-        try:
-            self.lease.renew_now(now)
-        except UNREACHABLE as error:
-            raise self.lease.unreachable(error) from None
+        self.lease.renew_now(now)  # DatabaseAway while it does not answer
         if self.lease.recovered:
             self.write_held(now)
 
