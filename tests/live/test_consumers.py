@@ -437,6 +437,59 @@ def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
     assert run(scenario()) == [1, 2, 3, 4, 5]
 
 
+def test_a_client_that_hears_live_batches_reads_the_log_only_once_they_stop(
+    printer: Printer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """While batches come, the periodic re-read is skipped (a lost one shows as a
+    gap in the next); once they stop, the log is read again, so lines whose batch
+    was lost after the last one heard still arrive."""
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+
+    async def no_relay(printer_id: int) -> None:
+        """Only the test publishes."""
+
+    monkeypatch.setattr(broadcast, "watch", no_relay)
+    monkeypatch.setattr(broadcast, "unwatch", no_relay)
+    reads: list[int] = []
+    read = live.lines_after
+
+    def counted(printer_id: int, last: int, upto: int | None = None) -> list:
+        reads.append(last)
+        return read(printer_id, last, upto)
+
+    monkeypatch.setattr(live, "lines_after", counted)
+    key = user_key("viewer", Role.VIEWER)
+    layer = channel_layers["default"]
+
+    async def publish(seq: int) -> None:
+        await database_sync_to_async(add_lines)(printer, seq, seq)
+        line = live.line_dict(seq, timezone.now(), f"echo {seq}", 4)
+        event = {"type": "lines", "lines": [line]}
+        await layer.group_send(
+            live.group_for(printer.pk),
+            {"type": "live.event", "printer_id": printer.pk, "event": event},
+        )
+
+    async def scenario() -> tuple[int, list[int]]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
+        await until(client, "hello")
+        reads.clear()
+        # Batches every 0.05 s over five re-read periods.
+        for seq in range(1, 21):
+            await publish(seq)
+            await asyncio.sleep(0.05)
+        while_heard = len(reads)
+        # The last batch is lost: its lines are in the log only.
+        await database_sync_to_async(add_lines)(printer, 21, 22)
+        seen = await line_ids(client, 22)
+        await client.disconnect()
+        return while_heard, seen
+
+    while_heard, seen = run(scenario())
+    assert while_heard <= 1  # at most the read of a period that began silent
+    assert seen == list(range(1, 23))
+
+
 def test_the_all_printers_feed_follows_role_changes(
     printer: Printer,
     make_printer: Callable[..., Printer],
