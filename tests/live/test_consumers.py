@@ -486,7 +486,9 @@ def test_a_client_that_hears_live_batches_reads_the_log_only_once_they_stop(
         return while_heard, seen
 
     while_heard, seen = run(scenario())
-    assert while_heard <= 1  # at most the read of a period that began silent
+    # Re-reading every period would be 5 or more; a period that began between two
+    # batches on a busy machine may read once.
+    assert while_heard <= 2
     assert seen == list(range(1, 23))
 
 
