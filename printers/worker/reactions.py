@@ -233,14 +233,12 @@ class Reactions:
     def handle_host_events(self: PrinterWorker, now: float) -> None:
         # The queues change state only with an event (a stream started, paused,
         # resumed or ended): without one, nothing here can change the printer's.
-        host = self.host
-        event = host.next_event()
-        if event is None:
-            return
-        while event is not None:
+        handled = False
+        while (event := self.host.next_event()) is not None:
             self._on_host_event(event)
-            event = host.next_event()
-        self.update_state()
+            handled = True
+        if handled:
+            self.update_state()
 
     def hold_or_run(self: PrinterWorker, action: Callable[[], object]) -> None:
         """Run a database write now, or hold it (in order) while the database is away.

@@ -128,10 +128,9 @@ def test_a_request_the_last_worker_took_and_never_answered_fails_with_the_reason
     assert QueuedCommand.objects.get(pk=pending.pk).state == "pending"
 
 
-def test_an_offline_worker_writes_what_it_held_once_the_database_is_back(make_printer):
-    """The database went away and came back while the printer was offline: what
-    the worker held (here a request's answer) is written then, not only once the
-    printer is back."""
+def answered_while_away(make_printer) -> tuple[PrinterWorker, QueuedCommand]:
+    """An offline worker (as run_printer makes it: it keeps going while the
+    database is away) that lost the database and holds a request's answer."""
     printer = make_printer(port="/nonexistent")
     worker = PrinterWorker(printer)
     worker.lease.keep_while_away = True  # run_printer holds the port's lock
@@ -141,6 +140,14 @@ def test_an_offline_worker_writes_what_it_held_once_the_database_is_back(make_pr
     worker.lease.unreachable(OperationalError("server closed the connection"))
     answer = QueuedCommand.objects.filter(pk=row.pk).update
     worker.hold_or_run(partial(answer, state="done", reply="ok"))
+    return worker, row
+
+
+def test_an_offline_worker_writes_what_it_held_once_the_database_is_back(make_printer):
+    """The database went away and came back while the printer was offline: what
+    the worker held (here a request's answer) is written then, not only once the
+    printer is back."""
+    worker, row = answered_while_away(make_printer)
     assert worker.held, "the answer was written while the database was away"
 
     def tick() -> None:  # as run() does: the database away does not end the loop
@@ -161,15 +168,8 @@ def test_a_worker_stopped_once_the_database_is_back_writes_what_it_held_first(
     """The database came back, and the worker is stopped before a turn wrote what
     it held: stop() writes it first. Left unwritten, the answer of a request the
     printer did answer would be failed by the next worker as never answered."""
-    printer = make_printer(port="/nonexistent")
-    worker = PrinterWorker(printer)
-    worker.lease.keep_while_away = True
-    worker.start()
-    worker.stay_offline = True
-    row = QueuedCommand.objects.create(printer=printer, text="M114", state="sent")
-    worker.lease.unreachable(OperationalError("server closed the connection"))
-    answer = QueuedCommand.objects.filter(pk=row.pk).update
-    worker.hold_or_run(partial(answer, state="done", reply="ok"))
+    worker, row = answered_while_away(make_printer)
+    printer = worker.printer
     assert worker.held
 
     worker.stop()
