@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,13 +52,24 @@ class Runhost:
     def stop(self, grace: float = 60.0) -> None:
         """SIGTERM to runhost (it stops its children in order), then SIGKILL to the
         whole group after *grace* seconds."""
+        self.terminate()
+        self.finish(time.monotonic() + grace)
+
+    def terminate(self) -> None:
+        """SIGTERM to runhost: it begins to stop its children (see finish)."""
         if self.process is None:
             return
         self.down = True
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                self.process.wait(timeout=grace)
+
+    def finish(self, until: float) -> None:
+        """Wait for a terminated runhost until the monotonic time *until*, then
+        SIGKILL what is left of its group."""
+        if self.process is None:
+            return
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.process.wait(timeout=max(0.0, until - time.monotonic()))
         self.kill()
 
     def kill(self) -> None:

@@ -237,10 +237,15 @@ print(json.dumps(keys))
         time.sleep(0.1)
 
     def close(self) -> None:
-        """Every runhost stopped (workers first), every simulator, the proxies."""
-        for name in [*self.host_names, "control"]:
-            if name in self.runhosts:
-                self.runhosts[name].stop()
+        """Every runhost stopped (the worker hosts together, then the control
+        plane), every simulator, the proxies."""
+        for names in (self.host_names, ["control"]):
+            stopping = [self.runhosts[n] for n in names if n in self.runhosts]
+            for runhost in stopping:
+                runhost.terminate()
+            until = time.monotonic() + 60.0
+            for runhost in stopping:
+                runhost.finish(until)
         for sim in self.sims.values():
             sim.stop()
         for proxy in (self.postgres_proxy, self.redis_proxy):

@@ -18,6 +18,9 @@ if TYPE_CHECKING:
 
 pytestmark = pytest.mark.slow
 
+#: httpx's default of 5 s is short for a live host's first request on a busy machine.
+TIMEOUT = 30.0
+
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveHost]:
@@ -27,7 +30,9 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveHost]:
 
 def cura_asks(live: LiveHost) -> str:
     """Cura's request through the printer-less URL; returns the URL it polls."""
-    asked = httpx.post(f"{live.url}/plugin/appkeys/request", json={"app": "Cura"})
+    asked = httpx.post(
+        f"{live.url}/plugin/appkeys/request", json={"app": "Cura"}, timeout=TIMEOUT
+    )
     assert asked.status_code == 201, asked.text
     return asked.headers["Location"]
 
@@ -51,13 +56,13 @@ def test_an_operator_approves_a_viewer_key_bound_to_one_printer(
     request.locator("[data-test=appkey-role]").select_option("admin")
     request.locator("[data-test=appkey-approve]").click()
     expect(page.locator("[data-test=error]")).to_contain_text("at most your own role")
-    assert httpx.get(poll).status_code == 202
+    assert httpx.get(poll, timeout=TIMEOUT).status_code == 202
 
     request.locator("[data-test=appkey-role]").select_option("viewer")
     request.locator("[data-test=appkey-approve]").click()
     expect(page.locator("[data-test=appkey]")).to_have_count(0)
     expect(page.locator("[data-test=keys]")).to_contain_text("Cura (app key)")
-    granted = httpx.get(poll)
+    granted = httpx.get(poll, timeout=TIMEOUT)
     assert granted.status_code == 200, granted.text
     app = httpx.Client(
         base_url=live.url, headers={"X-Api-Key": granted.json()["api_key"]}
