@@ -1,4 +1,5 @@
-"""Celery tasks of the jobs app: thin wrappers over `jobs.analysing` (file analysis),
+"""Celery tasks of the jobs app: thin wrappers over `jobs.analysis_task` and
+`jobs.analysing` (file analysis),
 `jobs.resume.planning` (resume plans) and `jobs.upkeep` (periodic upkeep, scheduled
 by beat: CELERY_BEAT_SCHEDULE)."""
 
@@ -20,7 +21,10 @@ from jobs import analysing, upkeep
 )
 def analyse_file(analysis_id: int) -> str:
     """Analyse one stored file (idempotent: a done or busy analysis is skipped)."""
-    return analysing.run(analysis_id)
+    # Here, not above: a process that only sends this task never loads the analyser.
+    from jobs import analysis_task
+
+    return analysis_task.run(analysis_id)
 
 
 @shared_task

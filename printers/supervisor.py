@@ -68,6 +68,10 @@ NICENESS = {
 }
 
 
+#: The children that serve pages (settings.WEB_APPS).
+SERVES_PAGES = frozenset({"daphne"})
+
+
 @dataclass
 class Child:
     """One supervised process and its restart bookkeeping."""
@@ -83,7 +87,7 @@ class Child:
 
     def start(self, now: float) -> None:
         logger.info("starting %s: %s", self.name, shlex.join(self.argv))
-        self.process = subprocess.Popen(self.argv)
+        self.process = subprocess.Popen(self.argv, env=child_environment(self.name))
         self.started_at = now
         nice = NICENESS.get(self.name, 0)
         if nice:
@@ -124,6 +128,16 @@ class Child:
             logger.warning("%s did not stop in time; killing it", self.name)
             self.process.kill()
             self.process.wait()
+
+
+def child_environment(name: str) -> dict[str, str]:
+    """The environment of the child *name*: runhost's own, and for every child but
+    the web server PRINTHOST_WEB_APPS=0 (settings.WEB_APPS: what serves no pages
+    loads neither daphne nor the API docs' app)."""
+    env = dict(os.environ)
+    if name not in SERVES_PAGES:
+        env["PRINTHOST_WEB_APPS"] = "0"
+    return env
 
 
 def celery_children(python: str) -> dict[str, list[str]]:

@@ -49,8 +49,15 @@ if env_bool("PRINTHOST_BEHIND_PROXY", default=False):
     SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https")
 X_FRAME_OPTIONS = "DENY"
 
+#: Apps only a process that serves pages needs: daphne's `runserver` and the API
+#: docs pages of django-ninja (their templates and static files). runhost starts
+#: its other children (printer workers, Celery, the fetcher...) with
+#: PRINTHOST_WEB_APPS=0: a printer worker then starts in about half the CPU time
+#: and with two thirds of the memory (no Twisted, no pydantic).
+WEB_APPS = env_bool("PRINTHOST_WEB_APPS", default=True)
+
 INSTALLED_APPS = [
-    "daphne",
+    *(["daphne"] if WEB_APPS else []),  # before staticfiles (daphne's check)
     "django.contrib.admin",
     "django.contrib.auth",
     "django.contrib.contenttypes",
@@ -58,7 +65,7 @@ INSTALLED_APPS = [
     "django.contrib.messages",
     "django.contrib.staticfiles",
     "channels",
-    "ninja",
+    *(["ninja"] if WEB_APPS else []),
     "printhost",
     "printers",
     "jobs",

@@ -8,7 +8,7 @@ import pytest
 from django.core.exceptions import ValidationError
 from django.test import Client
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.models import FileAnalysis
 from printers.models import Printer
 
@@ -31,7 +31,7 @@ def test_the_job_list_shows_each_files_analysis(
 ) -> None:
     printer = make_printer(slug="mk3")
     done = make_job(printer, SQUARE, name="done.gcode")
-    analysing.run(done.analysis_id)
+    analysis_task.run(done.analysis_id)
     make_job(printer, SQUARE + "G1 X0\n", name="waiting.gcode")
     page = admin_client_.get("/admin/jobs/job/").content.decode()
     assert "waiting for a Celery worker" in page

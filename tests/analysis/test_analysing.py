@@ -13,7 +13,7 @@ import pytest
 from django.db import transaction
 from django.utils import timezone
 
-from jobs import analysing
+from jobs import analysing, analysis_task
 from jobs.analysis.thumbnails import png_encode
 from jobs.models import FileAnalysis, Job
 from jobs.services import reprint
@@ -84,7 +84,7 @@ def test_a_run_stores_the_result_and_thumbnails_and_a_second_run_does_nothing(
     printer: Printer, make_job: Callable, settings: object
 ) -> None:
     job = make_job(printer, png_block(16, 12) + png_block(64, 48) + SQUARE)
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     row = FileAnalysis.objects.get(pk=job.analysis_id)
     assert row.state == FileAnalysis.State.DONE
     assert row.attempts == 1
@@ -96,7 +96,7 @@ def test_a_run_stores_the_result_and_thumbnails_and_a_second_run_does_nothing(
     assert [t["name"] for t in result.thumbnails] == ["64x48.png", "16x12.png"]
     folder = Path(settings.ANALYSIS_DIR) / job.sha256  # type: ignore[attr-defined]
     assert (folder / "64x48.png").read_bytes().startswith(b"\x89PNG")
-    assert analysing.run(job.analysis_id) == "skipped"
+    assert analysis_task.run(job.analysis_id) == "skipped"
     assert FileAnalysis.objects.get(pk=job.analysis_id).attempts == 1
 
 
@@ -104,8 +104,8 @@ def test_a_busy_analysis_is_left_alone_until_its_worker_falls_silent(
     printer: Printer, make_job: Callable, sent: list[int]
 ) -> None:
     job = make_job(printer, SQUARE)
-    assert analysing.claim(job.analysis_id, "host:1")
-    assert analysing.run(job.analysis_id, worker="host:2") == "skipped"
+    assert analysis_task.claim(job.analysis_id, "host:1")
+    assert analysis_task.run(job.analysis_id, worker="host:2") == "skipped"
     assert analysing.sweep() == 0
     # The first worker dies: its heartbeat ages past the limit.
     FileAnalysis.objects.filter(pk=job.analysis_id).update(
@@ -113,7 +113,7 @@ def test_a_busy_analysis_is_left_alone_until_its_worker_falls_silent(
     )
     assert analysing.sweep() == 1
     assert sent == [job.analysis_id]
-    assert analysing.run(job.analysis_id, worker="host:2") == "done"
+    assert analysis_task.run(job.analysis_id, worker="host:2") == "done"
     row = FileAnalysis.objects.get(pk=job.analysis_id)
     assert (row.state, row.worker, row.attempts) == ("done", "host:2", 2)
 
@@ -134,7 +134,7 @@ def test_a_file_gone_from_storage_fails_with_the_reason(
 ) -> None:
     job = make_job(printer, SQUARE)
     job.path.unlink()
-    assert analysing.run(job.analysis_id) == "failed"
+    assert analysis_task.run(job.analysis_id) == "failed"
     row = FileAnalysis.objects.get(pk=job.analysis_id)
     assert row.reason == "no stored file has this SHA-256 any more"
 
@@ -144,7 +144,7 @@ def test_a_file_changed_on_disk_fails_instead_of_describing_other_bytes(
 ) -> None:
     job = make_job(printer, SQUARE)
     job.path.write_text(SQUARE + "G1 X50\n")
-    assert analysing.run(job.analysis_id) == "failed"
+    assert analysis_task.run(job.analysis_id) == "failed"
     assert "changed" in FileAnalysis.objects.get(pk=job.analysis_id).reason
 
 
@@ -162,7 +162,7 @@ def test_a_partial_analysis_says_why_and_the_job_still_prints(
     printer: Printer, make_job: Callable, text: str, reason: str
 ) -> None:
     job = make_job(printer, text)
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     row = FileAnalysis.objects.get(pk=job.analysis_id)
     assert reason in row.reason
     assert Job.objects.get(pk=job.pk).state == Job.State.QUEUED
@@ -177,7 +177,7 @@ def test_a_crash_inside_the_analyser_fails_the_row_not_the_worker(
         raise TypeError("a bug")
 
     monkeypatch.setattr("jobs.analysis.analyser.Analyser.feed", broken)
-    assert analysing.run(job.analysis_id) == "failed"
+    assert analysis_task.run(job.analysis_id) == "failed"
     assert FileAnalysis.objects.get(pk=job.analysis_id).reason == "TypeError: a bug"
 
 
@@ -191,7 +191,7 @@ def test_the_printers_profile_and_materials_reach_the_analysis(
     fast = make_printer(slug="fast")
     jobs = [make_job(printer, SQUARE) for printer in (slow, fast)]
     for job in jobs:
-        analysing.run(job.analysis_id)
+        analysis_task.run(job.analysis_id)
     slow_result, fast_result = (
         analysing.analysis_of(Job.objects.get(pk=job.pk)) for job in jobs
     )
@@ -205,7 +205,7 @@ def test_a_grbl_printer_gets_a_cnc_analysis(
 ) -> None:
     router = make_printer(slug="router", firmware="grbl")
     job = make_job(router, "G21 G90\nM3 S9000\nG0 X10\nG1 Y10 F300\nM5\n")
-    analysing.run(job.analysis_id)
+    analysis_task.run(job.analysis_id)
     result = analysing.analysis_of(Job.objects.get(pk=job.pk))
     assert result and result.kind == "cnc"
     assert result.spindle_max == 9000
@@ -217,7 +217,7 @@ def test_real_slicer_files_are_analysed_from_storage(
     job = make_job(
         printer, (DATA / "prusaslicer-2.5_box-and-cylinder.gcode").read_text()
     )
-    analysing.run(job.analysis_id)
+    analysis_task.run(job.analysis_id)
     result = analysing.analysis_of(Job.objects.get(pk=job.pk))
     assert result is not None
     assert len(result.layers) == 50
@@ -230,7 +230,7 @@ def test_a_finished_analysis_is_read_once_per_process(
     """A running job's ETA is asked for on every progress write: its result column
     (megabytes for a big file) is loaded and parsed once, not each time."""
     job = make_job(printer, SQUARE)
-    analysing.run(job.analysis_id)
+    analysis_task.run(job.analysis_id)
 
     def fresh() -> Job:
         return (

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import pybgcode
 import pytest
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.analysis.thumbnails import png_encode
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, meatpack_decode
 from jobs.gcode import BadGcode, command_of, file_lines, inspect_file, iter_commands
@@ -217,8 +217,8 @@ def test_a_binary_upload_is_analysed_like_its_text(
     assert binary_job.size_bytes == binary.stat().st_size
     assert binary_job.line_count == text_job.line_count
     assert binary_job.path.read_bytes() == binary.read_bytes()  # stored as binary
-    assert analysing.run(text_job.analysis_id) == "done"
-    assert analysing.run(binary_job.analysis_id) == "done"
+    assert analysis_task.run(text_job.analysis_id) == "done"
+    assert analysis_task.run(binary_job.analysis_id) == "done"
     text_job.analysis.refresh_from_db()
     binary_job.analysis.refresh_from_db()
     ours, theirs = binary_job.analysis.result, text_job.analysis.result
@@ -251,7 +251,7 @@ def test_a_binary_file_broken_on_disk_fails_its_analysis_with_the_reason(
     data = bytearray(job.path.read_bytes())
     data[-100] ^= 1
     job.path.write_bytes(bytes(data))
-    assert analysing.run(job.analysis_id) == "failed"
+    assert analysis_task.run(job.analysis_id) == "failed"
     job.analysis.refresh_from_db()
     assert "fails its CRC32 check" in job.analysis.reason
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from django.test import Client
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.analysis.analyser import Analyser
 from jobs.analysis.toolpath import TOLERANCE
 from jobs.services import enqueue_job
@@ -156,7 +156,7 @@ def analysed(
     monkeypatch.setattr("jobs.tasks.analyse_file.delay", lambda pk: None)
     printer = make_printer(slug="mk4")
     job = enqueue_job(printer, PRUSA, name="box.gcode", origin="test", queue=False)
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     from django.contrib.auth import get_user_model
 
     from printhost.models import PrinterRole, Role
@@ -198,7 +198,7 @@ def test_a_file_without_layers_has_no_toolpath_to_serve(
     source = tmp_path / "home.gcode"
     source.write_text("G28\nM84\n")
     job = enqueue_job(printer, source, name="home.gcode", origin="test", queue=False)
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     response = client.get(f"/printer/toolpath/mk4/{job.pk}/0")
     assert response.status_code == 404
     assert "no toolpath" in response.json()["error"]
@@ -235,7 +235,7 @@ def test_a_cnc_jobs_preview_is_one_layer_in_the_api(
     source = tmp_path / "pocket.nc"
     source.write_text("G21 G90\nG0 Z5\nG1 Z-1 F300\nG1 X20 Y5 F600\nG0 Z5\n")
     job = enqueue_job(router, source, name="pocket.nc", origin="test", queue=False)
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     info = client.get(f"/printer/analysis/cnc/{job.pk}").json()["data"]
     # The plunge from Z5 cuts: the job's top is 5 mm.
     assert info["layer_list"] == [{"z": 5.0, "line": 0, "time": 0.0}]

@@ -10,7 +10,7 @@ import pytest
 from django.test import Client
 from django.utils import timezone
 
-from jobs import analysing
+from jobs import analysing, analysis_task
 from jobs.analysis.thumbnails import png_encode
 from jobs.eta import estimate
 from jobs.models import FileAnalysis, Job
@@ -34,7 +34,7 @@ def analysed(printer: Printer, tmp_path: Path) -> Job:
         + PRUSA.read_text()
     )
     job = enqueue_job(printer, source, name="box.gcode")
-    assert analysing.run(job.analysis_id) == "done"
+    assert analysis_task.run(job.analysis_id) == "done"
     return Job.objects.get(pk=job.pk)
 
 

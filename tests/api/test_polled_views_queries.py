@@ -20,7 +20,7 @@ from django.test import Client
 from django.test.utils import CaptureQueriesContext
 from django.utils import timezone
 
-from jobs.analysing import run
+from jobs.analysis_task import run
 from jobs.models import Job, running_job
 from printers.models import Printer
 from printhost.access import issue_key

@@ -7,7 +7,7 @@ import json
 import pytest
 from django.test import Client
 
-from jobs.analysing import run as analyse
+from jobs.analysis_task import run as analyse
 from jobs.models import Job, ResumePlan
 from jobs.resume.planning import make_plan
 from printers.models import QueuedCommand

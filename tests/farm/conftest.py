@@ -2,7 +2,7 @@
 
 A printer is made ready the way its worker leaves it (state idle, its lease held);
 a farm file is analysed by the real analyser, in this process, as the Celery task
-would (`jobs.analysing.run`).
+would (`jobs.analysis_task.run`).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def farm_printer(make_printer: Callable[..., Printer]) -> Callable[..., Printer]
 def to_farm(db: None, storage: object) -> Callable[..., FarmJob]:
     """Upload *text* to the farm queue (the real storing path), analysed unless
     *analyse* is false."""
-    from jobs.analysing import run
+    from jobs.analysis_task import run
     from jobs.farm.requirements import parse_requirements
     from jobs.farm.storing import store_farm_upload
 

@@ -32,7 +32,7 @@ SETUP = """
 import io
 from datetime import timedelta
 from django.utils import timezone
-from jobs.analysing import run
+from jobs.analysis_task import run
 from jobs.farm.requirements import Requirements
 from jobs.farm.storing import store_farm_upload
 from printers.models import Printer

@@ -13,7 +13,7 @@ from django.core.exceptions import ValidationError
 from django.core.files.uploadedfile import SimpleUploadedFile
 from django.test import Client
 
-from jobs.analysing import run
+from jobs.analysis_task import run
 from jobs.farm.dispatch import Dispatcher
 from jobs.farm.models import FarmJob
 from printers.models import Printer

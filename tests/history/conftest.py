@@ -17,7 +17,7 @@ from django.contrib.auth import get_user_model
 from django.test import Client
 from django.utils import timezone
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.models import Job
 from jobs.services import enqueue_job, reprint
 from printers.models import Printer
@@ -58,7 +58,7 @@ class Farm:
             origin=f"http:{user} key",
             user=self.users[user],
         )
-        analysing.run(job.analysis_id)
+        analysis_task.run(job.analysis_id)
         return Job.objects.get(pk=job.pk)
 
     def start(self, job: Job, *, minutes_ago: float) -> Job:
@@ -102,7 +102,7 @@ class Farm:
         """A resumed run of *job* from *line*, started (as the resume would queue it)."""
         again = reprint(job, origin=job.origin, user=job.uploaded_by)
         Job.objects.filter(pk=again.pk).update(resume_of=job, start_line=line)
-        analysing.run(again.analysis_id)
+        analysis_task.run(again.analysis_id)
         return self.start(Job.objects.get(pk=again.pk), minutes_ago=minutes)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.analysing import analysis_of
 from jobs.history import HistoryEntry
 from jobs.models import Job
@@ -22,7 +22,7 @@ def test_a_job_completed_by_a_worker_on_the_simulator_is_in_the_history(
     sim = sim_factory("marlin", "--baud", "115200", "--time-scale", "0")
     printer = make_printer(port=str(sim.link), baud=115200, slug="mk3")
     job = make_job(printer, FLAT_BOX.read_text(), name="flat-box.gcode")
-    analysing.run(job.analysis_id)  # as the Celery task would, before it prints
+    analysis_task.run(job.analysis_id)  # as the Celery task would, before it prints
     worker = PrinterWorker(printer)
 
     job = run_job(worker, job, timeout=120)

@@ -7,7 +7,7 @@ import json
 import pytest
 from django.test import Client
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.models import Job
 from jobs.services import enqueue_job
 from printers.models import QueuedCommand
@@ -31,7 +31,7 @@ def make_job(make_printer, tmp_path, text: str = LABELLED, state: str = "printin
     source = tmp_path / "parts.gcode"
     source.write_text(text)
     job = enqueue_job(printer, source, name="parts.gcode")
-    analysing.run(job.analysis_id)
+    analysis_task.run(job.analysis_id)
     Job.objects.filter(pk=job.pk).update(state=state)
     return Job.objects.get(pk=job.pk)
 

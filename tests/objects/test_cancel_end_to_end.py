@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from django.test import Client
 
-from jobs import analysing
+from jobs import analysis_task
 from jobs.models import Job
 from jobs.services import enqueue_job
 from printers.models import ResponseLine
@@ -50,7 +50,7 @@ def m486_labels(text: str) -> str:
 def start(make_printer, sim, source: Path) -> tuple[PrinterWorker, Job]:
     printer = make_printer(port=str(sim.link), baud=250000)
     job = enqueue_job(printer, source, name=source.name)
-    analysing.run(job.analysis_id)  # what the Celery worker does
+    analysis_task.run(job.analysis_id)  # what the Celery worker does
     job = Job.objects.get(pk=job.pk)
     assert job.objects_list() == ["box-a.stl", "box-b.stl", "box-c.stl"]
     worker = PrinterWorker(printer)

@@ -54,7 +54,7 @@ class Interrupted:
         host.manage("add_job", "p0", str(tmp_path / "job.gcode"))
         # The analysis, as the Celery worker makes it (a resume needs it).
         host.shell(
-            "from jobs.models import Job; from jobs.analysing import run; "
+            "from jobs.models import Job; from jobs.analysis_task import run; "
             "run(Job.objects.get().analysis_id)"
         )
         journal = Journal(1, tmp_path / "journal")

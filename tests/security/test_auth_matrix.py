@@ -24,7 +24,7 @@ from django.db import transaction
 from django.test import Client
 from django.utils import timezone
 
-from jobs import analysing, history, uploads
+from jobs import analysis_task, history, uploads
 from jobs.analysis.thumbnails import png_encode
 from jobs.farm.requirements import Requirements
 from jobs.farm.storing import store_farm_upload
@@ -296,7 +296,7 @@ def objects_for(world: World, caller: str, state: str) -> dict[str, object]:
     """What the call needs, made for this caller (in its savepoint)."""
     p = world.p
     stored = enqueue_job(p, world.source, name="cube.gcode", queue=False)
-    analysing.run(stored.analysis_id)  # as the Celery worker would (its thumbnail)
+    analysis_task.run(stored.analysis_id)  # as the Celery worker would (its thumbnail)
     done = enqueue_job(p, world.source, name="done.gcode", queue=False)
     Job.objects.filter(pk=done.pk).update(
         state=Job.State.COMPLETED, started_at=timezone.now(), finished_at=timezone.now()

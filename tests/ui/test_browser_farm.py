@@ -59,7 +59,7 @@ Printer.objects.filter(slug="rack-mk4").update(worker_host=rack, name="MK4 on ra
 #: Farm uploads, analysed here as the Celery worker would.
 UPLOADS = """
 import io
-from jobs.analysing import run
+from jobs.analysis_task import run
 from jobs.farm.requirements import parse_requirements
 from jobs.farm.storing import store_farm_upload
 for name, text, asks in {uploads!r}:

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from jobs.analysing import run as analyse
+from jobs.analysis_task import run as analyse
 from jobs.models import Job
 from printhost.models import Role
 from tests.resume.prints import layered_print
