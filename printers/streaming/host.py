@@ -4,8 +4,8 @@ It is the spooler's brain (MeerK40t): the worker owns the loop and the I/O, the 
 decides which line goes next. Each call to `advance(now)` does ESP3D's operations 2
 and 3: choose the active stream (emergency > script queue > stream queue) and move
 its command state until it has to wait. Step 1 (external requests) arrives through
-`request_pause/resume/abort` and `submit`; step 4 (the rx queue) through
-`handle_ack/handle_failed` called by the worker for the protocol's events.
+`request_pause/resume/abort` (host_control.py) and `submit`; step 4 (the rx queue)
+through `handle_ack/handle_failed` called by the worker for the protocol's events.
 """
 
 from __future__ import annotations
@@ -14,31 +14,24 @@ from collections import deque
 from typing import TYPE_CHECKING
 
 from printers.protocol.errors import CommandRejected
+from printers.streaming.host_control import StreamControl
 from printers.streaming.host_events import (
     CommandAnswered,
     EspCommand,
     HostEvent,
     StreamEnded,
-    StreamPaused,
-    StreamResumed,
     StreamStarted,
 )
 from printers.streaming.printer_side import (
     complete,
-    control_stream,
     exclusive_now,
     holding,
-    runs_scripts,
 )
 from printers.streaming.streams import (
-    REQUEST_MOVES,
-    REQUESTS_FROM,
     CommandState,
     Line,
     QueueState,
     Stream,
-    StreamType,
-    lines_from_text,
 )
 
 if TYPE_CHECKING:
@@ -49,7 +42,7 @@ S = CommandState
 CLOSING = -1
 
 
-class StreamHost:
+class StreamHost(StreamControl):
     """Queues streams and feeds their lines to a LinkProtocol as its window allows."""
 
     def __init__(
@@ -86,68 +79,9 @@ class StreamHost:
         else:
             raise ValueError(f"stream type {stream.type.value} cannot be streamed")
 
-    def run_script(self, name: str, *, origin: str = "host") -> Stream | None:
-        """Queue the printer's script *name* (pause, resume, abort...) if it has one."""
-        lines = lines_from_text(self.scripts.get(name, ""))
-        if not lines:
-            return None
-        stream = Stream(
-            StreamType.MULTIPLE_COMMANDS, lines, name=f"{name} script", origin=origin
-        )
-        self.script_queue.append(stream)
-        return stream
-
     def emergency(self, text: str) -> None:
         """Queue an emergency command: it goes out on the next advance, ahead of all."""
         self.emergency_queue.append(text)
-
-    def request_pause(self, *, script: bool = True) -> str:
-        """Ask the active stream to pause; returns an error message or "".
-
-        Without *script* the printer paused itself: the pause script is not run.
-        """
-        stream = self.current_stream
-        if stream is None:
-            return "no stream is running"
-        if stream.state in (S.PAUSE, S.PAUSED):
-            return "the stream is already paused"
-        side = stream.printer_side
-        if side is not None and not side.pausable:
-            return side.why_not or "this stream cannot pause"
-        self._requested, self._with_script = "pause", script
-        return ""
-
-    def request_resume(self, *, script: bool = True) -> str:
-        """Ask the paused stream to resume (without *script*: the printer did).
-
-        A pause asked but not applied yet is simply dropped (the printer paused
-        and resumed itself before the stream could stop).
-        """
-        stream = self.current_stream
-        if stream is not None and self._requested == "pause":
-            self._requested, self._with_script = "", True
-            return ""
-        if stream is None or stream.state is not S.PAUSED:
-            return "no stream is paused"
-        self._requested, self._with_script = "resume", script
-        return ""
-
-    def release(self, stream: Stream) -> None:
-        """The printer confirmed what *stream* holds for (M28 opened the file)."""
-        if stream.printer_side is not None:
-            stream.printer_side.released = True
-
-    def printer_done(self, stream: Stream) -> None:
-        """The printer finished the file *stream* handed it (`Done printing file`)."""
-        if stream.printer_side is not None:
-            stream.printer_side.done = True
-
-    def request_abort(self, message: str = "aborted by request") -> str:
-        if self.current_stream is None:
-            return "no stream is running"
-        self._requested = "abort"
-        self._abort_message = message
-        return ""
 
     # -- the protocol's answers (operation 4) ---------------------------------
 
@@ -360,37 +294,6 @@ class StreamHost:
         stream.move(S.WAIT_FOR_ACK)
         return True
 
-    def _on_pause(self, stream: Stream, now: float) -> bool:
-        if self._with_script:
-            self._control(stream, "pause")
-            if runs_scripts(stream):
-                self.run_script("pause")
-        self._with_script = True
-        stream.move(S.PAUSED)
-        self._events.append(StreamPaused(stream))
-        return True
-
-    def _on_paused(self, stream: Stream, now: float) -> bool:
-        return self._take_request(stream)
-
-    def _on_resume(self, stream: Stream, now: float) -> bool:
-        if self._with_script:
-            if runs_scripts(stream):
-                self.run_script("resume")
-            self._control(stream, "resume")
-        self._with_script = True
-        stream.move(S.READY_TO_READ_CURSOR)
-        self._events.append(StreamResumed(stream))
-        return True
-
-    def _on_abort(self, stream: Stream, now: float) -> bool:
-        self._control(stream, "abort")
-        if runs_scripts(stream):
-            self.run_script("abort")
-        stream.move(S.END)
-        self._finish(stream, "aborted", self._abort_message)
-        return True
-
     def _on_error(self, stream: Stream, now: float) -> bool:
         side = stream.printer_side
         if side is not None and (side.released or not side.hold_after):
@@ -403,16 +306,6 @@ class StreamHost:
 
     # -- helpers ---------------------------------------------------------------
 
-    def _control(self, stream: Stream, action: str) -> None:
-        """Queue the printer's own command for *action*; an exclusive stream's first
-        (nothing queued behind it may reach the firmware before its file is closed)."""
-        control = control_stream(stream, action)
-        side = stream.printer_side
-        if control is not None and side is not None and side.exclusive:
-            self.script_queue.appendleft(control)
-        elif control is not None:
-            self.script_queue.append(control)
-
     def _closing(self, stream: Stream) -> Line | None:
         """The closing sync owed after a file stream's last line (S1 in marlin.py)."""
         if stream.sync or not stream.type.is_stream or stream.printer_side is not None:
@@ -423,17 +316,6 @@ class StreamHost:
 
     def _can_go(self, line: Line) -> bool:
         return line.text.startswith("[ESP") or self.protocol.can_send(line.text)
-
-    def _take_request(self, stream: Stream) -> bool:
-        """Apply a pending pause/resume/abort to the stream queue's head."""
-        if not self._requested or stream is not self.current_stream:
-            return False
-        wanted, self._requested = self._requested, ""
-        target = REQUEST_MOVES[wanted]
-        if target not in REQUESTS_FROM[stream.state]:
-            return False
-        stream.move(target)
-        return True
 
     def _fail(self, stream: Stream, message: str) -> None:
         stream.message = message
