@@ -1,7 +1,7 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py,
+# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py, marlin_deadlines.py,
 # marlin_trust.py and marlin_probe.py only carry them out (h11's _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by

@@ -11,7 +11,7 @@ from printers.protocol import events as ev
 from printers.protocol.events import LineKind
 from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unlocked
 from printers.streaming import Stream, StreamType, lines_from_text
-from printers.streaming import host as hv
+from printers.streaming import host_events as hv
 from printers.worker import spool
 from printers.worker.lease import UNREACHABLE, DatabaseAway
 

@@ -16,7 +16,7 @@ from printers.streaming import (
     StreamType,
     lines_from_text,
 )
-from printers.streaming import host as hv
+from printers.streaming import host_events as hv
 
 
 def file_stream(count: int, name: str = "job") -> Stream:
