@@ -1,8 +1,9 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py, marlin_deadlines.py,
-# marlin_trust.py and marlin_probe.py only carry them out (h11's _state.py habit).
+# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py,
+# marlin_deadlines.py, marlin_trust.py and marlin_probe.py only carry them out (h11's
+# _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
