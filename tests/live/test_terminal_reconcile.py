@@ -76,6 +76,70 @@ def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
     ]
 
 
+def test_a_terminal_that_hears_live_batches_reads_the_log_only_once_they_stop(
+    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As the websocket feed: no periodic re-read while batches come, and the lines
+    of a batch lost after the last one heard still arrive from the log."""
+    printer = make_printer(slug="mk3", state="idle")
+    user = get_user_model().objects.create_user("watcher", password="watcher")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
+    key = issue_key(user, "terminal")[1]
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
+
+    async def no_relay(printer_id: int) -> None:
+        """Only the test publishes."""
+
+    monkeypatch.setattr(broadcast, "watch", no_relay)
+    monkeypatch.setattr(broadcast, "unwatch", no_relay)
+    reads: list[int] = []
+    read = live.lines_after
+
+    def counted(printer_id: int, last: int, upto: int | None = None) -> list:
+        reads.append(last)
+        return read(printer_id, last, upto)
+
+    monkeypatch.setattr(live, "lines_after", counted)
+
+    async def publish(seq: int) -> None:
+        await database_sync_to_async(add_lines)(printer, seq, seq)
+        line = live.line_dict(seq, timezone.now(), f"echo {seq}", 4)
+        await channel_layers["default"].group_send(
+            live.group_for(printer.pk),
+            {"type": "live.event", "printer_id": printer.pk,
+             "event": {"type": "lines", "lines": [line]}},
+        )  # fmt: skip
+
+    async def scenario() -> tuple[int, list[str]]:
+        server = await asyncio.start_server(
+            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
+        )
+        port = server.sockets[0].getsockname()[1]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(f"{key}\n".encode())
+        await asyncio.wait_for(reader.readline(), 10)
+        reads.clear()
+        # Batches every 0.05 s over five re-read periods.
+        for seq in range(1, 21):
+            await publish(seq)
+            await asyncio.sleep(0.05)
+        while_heard = len(reads)
+        # The last batch is lost: its lines are in the log only.
+        await database_sync_to_async(add_lines)(printer, 21, 22)
+        got = [
+            (await asyncio.wait_for(reader.readline(), 10)).decode() for _ in range(22)
+        ]
+        writer.close()
+        server.close()
+        return while_heard, got
+
+    while_heard, got = asyncio.run(asyncio.wait_for(scenario(), 30))
+    # Re-reading every period would be 5 or more; a period that began between two
+    # batches on a busy machine may read once.
+    assert while_heard <= 2
+    assert got == [f"echo {i}\n" for i in range(1, 23)]
+
+
 def test_a_terminal_session_ends_when_its_key_is_revoked(
     make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
 ) -> None:
