@@ -69,10 +69,9 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         self.tasks: set[asyncio.Task[None]] = set()
         await self.accept()
         try:
-            self.caller = await database_sync_to_async(caller_from_scope)(self.scope)
             query = query_of(self.scope)
             self.filter = int_param(query, "filter") or 0
-            printers = await database_sync_to_async(self.printers_to_watch)()
+            printers = await database_sync_to_async(self.identify)()
             starts = {p.pk: int_param(query, self.last_param(p)) for p in printers}
         except Refused as refused:
             await self.send_json({"type": "error", "message": str(refused)})
@@ -81,6 +80,13 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         for printer in printers:
             await self.subscribe(printer, starts[printer.pk])
         self.spawn(self.reconcile())
+
+    def identify(self) -> list[Printer]:
+        """Who the caller is now (`self.caller`) and the printers it may watch, in
+        one trip to the database thread, which every client and view of this
+        daphne shares."""
+        self.caller = caller_from_scope(self.scope)
+        return self.printers_to_watch()
 
     def printers_to_watch(self) -> list[Printer]:
         raise NotImplementedError
@@ -192,8 +198,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         line) and one that no longer is is dropped with a `gone` message.
         """
         try:
-            self.caller = await database_sync_to_async(caller_from_scope)(self.scope)
-            printers = await database_sync_to_async(self.printers_to_watch)()
+            printers = await database_sync_to_async(self.identify)()
         except Refused as refused:
             await self.send_json({"type": "error", "message": str(refused)})
             await self.close(code=refused.code)
