@@ -61,7 +61,12 @@ class Watcher:
         return self.lines[-1][0] if self.lines else self.start
 
     async def session(self, query: str, until: Any) -> None:
-        async with websockets.connect(self.url + query, max_size=None) as ws:
+        # Fifty handshakes at once on a busy machine: the library's 10 s is short
+        # (the scenario bounds the whole connecting at 60 s).
+        connecting = websockets.connect(
+            self.url + query, max_size=None, open_timeout=60
+        )
+        async with connecting as ws:
             hello = json.loads(await ws.recv())
             assert hello["type"] == "hello", hello
             if not self.connected.is_set():

@@ -20,7 +20,7 @@ DEPLOY = ROOT / "docs" / "deploy"
 ENV_EXAMPLE = DEPLOY / "printhost.env.example"
 UNITS = sorted((DEPLOY / "systemd").glob("*.service"))
 #: Set by runhost for its own children, not by a deployment.
-NOT_DEPLOYMENT_SETTINGS = {"PRINTHOST_WORKER_HOST"}
+NOT_DEPLOYMENT_SETTINGS = {"PRINTHOST_WORKER_HOST", "PRINTHOST_WEB_APPS"}
 #: What the units' specifiers stand for in these tests.
 SPECIFIERS = {"%i": "8001", "%H": "farmhost"}
 OPTION = re.compile(r"^--?[A-Za-z][\w-]*$")
