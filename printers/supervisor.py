@@ -131,13 +131,10 @@ class Child:
 
 
 def child_environment(name: str) -> dict[str, str]:
-    """The environment of the child *name*: runhost's own, and for every child but
-    the web server PRINTHOST_WEB_APPS=0 (settings.WEB_APPS: what serves no pages
-    loads neither daphne nor the API docs' app)."""
-    env = dict(os.environ)
-    if name not in SERVES_PAGES:
-        env["PRINTHOST_WEB_APPS"] = "0"
-    return env
+    """The environment of the child *name*: runhost's own, with PRINTHOST_WEB_APPS
+    set for it (settings.WEB_APPS): 1 for the web server, 0 for every other child,
+    which then loads neither daphne nor the API docs' app."""
+    return {**os.environ, "PRINTHOST_WEB_APPS": "1" if name in SERVES_PAGES else "0"}
 
 
 def celery_children(python: str) -> dict[str, list[str]]:

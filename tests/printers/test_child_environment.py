@@ -45,5 +45,5 @@ def test_a_printer_worker_and_the_pages_never_load_the_analyser():
 
 def test_the_web_server_keeps_the_web_apps():
     env = child_environment("daphne")
-    assert env.get("PRINTHOST_WEB_APPS") != "0"
+    assert env["PRINTHOST_WEB_APPS"] == "1"
     assert modules_after_setup(env) == set(WEB_ONLY)
