@@ -6,6 +6,7 @@ import uuid
 
 import pytest
 from kombu import Connection
+from kombu.transport import filesystem, virtual
 
 from printhost import metrics_queues
 from tests.hosts import redis_url
@@ -38,6 +39,10 @@ def test_the_filesystem_broker_counts_its_message_files(
     options = {"data_folder_in": str(folder), "data_folder_out": str(folder)}
     # kombu writes its exchange files to ./control: keep them in this test's folder.
     monkeypatch.chdir(tmp_path)
+    # ...and remembers, process-wide, which bindings it declared: one declared by
+    # an earlier test (an analysis sent through the filesystem broker) would skip
+    # this folder's exchange file, and the messages would go to no queue.
+    monkeypatch.setattr(filesystem.Transport, "global_state", virtual.BrokerState())
     settings.CELERY_BROKER_URL = "filesystem://"
     settings.CELERY_BROKER_TRANSPORT_OPTIONS = options
     settings.CELERY_TASK_DEFAULT_QUEUE = "printhost"
