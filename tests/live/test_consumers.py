@@ -413,17 +413,11 @@ def test_the_all_printers_feed_resumes_each_printer_from_its_own_last_id(
     assert run(scenario()) == {"mk3": [4, 5], "other": [2, 3, 4, 5]}
 
 
+@pytest.mark.usefixtures("quiet_feed")
 def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
-    printer: Printer, monkeypatch: pytest.MonkeyPatch
+    printer: Printer,
 ) -> None:
     """The channel layer is lossy: a client re-reads the log now and then."""
-    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
-
-    async def no_relay(printer_id: int) -> None:
-        """Nobody publishes: every live message is 'lost'."""
-
-    monkeypatch.setattr(broadcast, "watch", no_relay)
-    monkeypatch.setattr(broadcast, "unwatch", no_relay)
     key = user_key("viewer", Role.VIEWER)
 
     async def scenario() -> list[int]:
@@ -437,27 +431,14 @@ def test_a_client_catches_up_from_the_log_when_a_live_message_is_lost(
     assert run(scenario()) == [1, 2, 3, 4, 5]
 
 
+@pytest.mark.usefixtures("quiet_feed")
 def test_a_client_that_hears_live_batches_reads_the_log_only_once_they_stop(
-    printer: Printer, monkeypatch: pytest.MonkeyPatch
+    printer: Printer, log_reads: list[int]
 ) -> None:
     """While batches come, the periodic re-read is skipped (a lost one shows as a
     gap in the next); once they stop, the log is read again, so lines whose batch
     was lost after the last one heard still arrive."""
-    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
-
-    async def no_relay(printer_id: int) -> None:
-        """Only the test publishes."""
-
-    monkeypatch.setattr(broadcast, "watch", no_relay)
-    monkeypatch.setattr(broadcast, "unwatch", no_relay)
-    reads: list[int] = []
-    read = live.lines_after
-
-    def counted(printer_id: int, last: int, upto: int | None = None) -> list:
-        reads.append(last)
-        return read(printer_id, last, upto)
-
-    monkeypatch.setattr(live, "lines_after", counted)
+    reads = log_reads
     key = user_key("viewer", Role.VIEWER)
     layer = channel_layers["default"]
 

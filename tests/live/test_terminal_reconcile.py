@@ -11,7 +11,7 @@ from channels.layers import channel_layers
 from django.contrib.auth import get_user_model
 from django.utils import timezone
 
-from printers import broadcast, live
+from printers import live
 from printers.models import Printer, ResponseLine
 from printers.terminal import Session
 from printhost.access import issue_key
@@ -28,6 +28,15 @@ def fresh_layer() -> Iterator[None]:
     channel_layers.backends.clear()
 
 
+@pytest.fixture
+def watched(make_printer: Callable[..., Printer]) -> tuple[Printer, str]:
+    """Printer mk3 and the API key of a user who may watch it."""
+    printer = make_printer(slug="mk3", state="idle")
+    user = get_user_model().objects.create_user("watcher", password="watcher")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
+    return printer, issue_key(user, "terminal")[1]
+
+
 def add_lines(printer: Printer, first: int, last: int) -> None:
     ResponseLine.objects.bulk_create(
         ResponseLine(
@@ -37,20 +46,11 @@ def add_lines(printer: Printer, first: int, last: int) -> None:
     )
 
 
+@pytest.mark.usefixtures("quiet_feed")
 def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
-    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+    watched: tuple[Printer, str],
 ) -> None:
-    printer = make_printer(slug="mk3", state="idle")
-    user = get_user_model().objects.create_user("watcher", password="watcher")
-    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
-    key = issue_key(user, "terminal")[1]
-    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
-
-    async def no_relay(printer_id: int) -> None:
-        """Nobody publishes: every live message is 'lost'."""
-
-    monkeypatch.setattr(broadcast, "watch", no_relay)
-    monkeypatch.setattr(broadcast, "unwatch", no_relay)
+    printer, key = watched
 
     async def scenario() -> list[str]:
         server = await asyncio.start_server(
@@ -76,30 +76,14 @@ def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
     ]
 
 
+@pytest.mark.usefixtures("quiet_feed")
 def test_a_terminal_that_hears_live_batches_reads_the_log_only_once_they_stop(
-    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+    watched: tuple[Printer, str], log_reads: list[int]
 ) -> None:
     """As the websocket feed: no periodic re-read while batches come, and the lines
     of a batch lost after the last one heard still arrive from the log."""
-    printer = make_printer(slug="mk3", state="idle")
-    user = get_user_model().objects.create_user("watcher", password="watcher")
-    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
-    key = issue_key(user, "terminal")[1]
-    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
-
-    async def no_relay(printer_id: int) -> None:
-        """Only the test publishes."""
-
-    monkeypatch.setattr(broadcast, "watch", no_relay)
-    monkeypatch.setattr(broadcast, "unwatch", no_relay)
-    reads: list[int] = []
-    read = live.lines_after
-
-    def counted(printer_id: int, last: int, upto: int | None = None) -> list:
-        reads.append(last)
-        return read(printer_id, last, upto)
-
-    monkeypatch.setattr(live, "lines_after", counted)
+    printer, key = watched
+    reads = log_reads
 
     async def publish(seq: int) -> None:
         await database_sync_to_async(add_lines)(printer, seq, seq)
@@ -141,12 +125,9 @@ def test_a_terminal_that_hears_live_batches_reads_the_log_only_once_they_stop(
 
 
 def test_a_terminal_session_ends_when_its_key_is_revoked(
-    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+    watched: tuple[Printer, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    printer = make_printer(slug="mk3", state="idle")
-    user = get_user_model().objects.create_user("watcher", password="watcher")
-    PrinterRole.objects.create(user=user, printer=printer, role=Role.VIEWER)
-    key = issue_key(user, "terminal")[1]
+    printer, key = watched
     monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
 
     def revoke() -> None:
