@@ -1,10 +1,17 @@
-"""What the live-feed tests share: no relays, a quick reconcile, counted log reads."""
+"""What the live-feed tests share: no relays, a quick reconcile, counted log reads,
+lines in the log and batches of them published."""
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
+from channels.db import database_sync_to_async
+from channels.layers import channel_layers
+from django.utils import timezone
 
 from printers import broadcast, live
+from printers.models import Printer, ResponseLine
 
 
 @pytest.fixture
@@ -32,3 +39,33 @@ def log_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
     monkeypatch.setattr(live, "lines_after", counted)
     return reads
+
+
+def add_lines(printer: Printer, first: int, last: int, kind: int = 4) -> None:
+    """Lines `echo <seq>` for seq first..last in the printer's response log."""
+    ResponseLine.objects.bulk_create(
+        ResponseLine(
+            printer=printer, seq=i, time=timezone.now(), text=f"echo {i}", kind=kind
+        )
+        for i in range(first, last + 1)
+    )
+
+
+async def batches_then_a_lost_one(printer: Printer, reads: list[int]) -> int:
+    """Lines 1-20 logged and published a batch each 0.05 s (five reconcile periods of
+    quiet_feed), then 21-22 logged only (their batch lost); returns how many log
+    reads (log_reads) the client made while the batches came."""
+    reads.clear()
+    layer = channel_layers["default"]
+    for seq in range(1, 21):
+        await database_sync_to_async(add_lines)(printer, seq, seq)
+        line = live.line_dict(seq, timezone.now(), f"echo {seq}", 4)
+        await layer.group_send(
+            live.group_for(printer.pk),
+            {"type": "live.event", "printer_id": printer.pk,
+             "event": {"type": "lines", "lines": [line]}},
+        )  # fmt: skip
+        await asyncio.sleep(0.05)
+    while_heard = len(reads)
+    await database_sync_to_async(add_lines)(printer, 21, 22)
+    return while_heard

@@ -15,10 +15,11 @@ from django.contrib.auth import get_user_model
 from django.utils import timezone
 
 from printers import broadcast, live
-from printers.models import Printer, QueuedCommand, ResponseLine
+from printers.models import Printer, QueuedCommand
 from printhost.access import issue_key
 from printhost.asgi import application
 from printhost.models import ApiKey, AuditEntry, PrinterRole, Role
+from tests.live.conftest import add_lines, batches_then_a_lost_one
 
 pytestmark = pytest.mark.django_db(transaction=True)
 TIMEOUT = 5
@@ -47,15 +48,6 @@ def user_key(
     if role is not None:
         PrinterRole.objects.create(user=user, role=role, printer=printer)
     return issue_key(user, "test", printer=bound)[1]
-
-
-def add_lines(printer: Printer, first: int, last: int, kind: int = 4) -> None:
-    ResponseLine.objects.bulk_create(
-        ResponseLine(
-            printer=printer, seq=i, time=timezone.now(), text=f"echo {i}", kind=kind
-        )
-        for i in range(first, last + 1)
-    )
 
 
 def run(coroutine: Any) -> Any:
@@ -438,30 +430,12 @@ def test_a_client_that_hears_live_batches_reads_the_log_only_once_they_stop(
     """While batches come, the periodic re-read is skipped (a lost one shows as a
     gap in the next); once they stop, the log is read again, so lines whose batch
     was lost after the last one heard still arrive."""
-    reads = log_reads
     key = user_key("viewer", Role.VIEWER)
-    layer = channel_layers["default"]
-
-    async def publish(seq: int) -> None:
-        await database_sync_to_async(add_lines)(printer, seq, seq)
-        line = live.line_dict(seq, timezone.now(), f"echo {seq}", 4)
-        event = {"type": "lines", "lines": [line]}
-        await layer.group_send(
-            live.group_for(printer.pk),
-            {"type": "live.event", "printer_id": printer.pk, "event": event},
-        )
 
     async def scenario() -> tuple[int, list[int]]:
         client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
         await until(client, "hello")
-        reads.clear()
-        # Batches every 0.05 s over five re-read periods.
-        for seq in range(1, 21):
-            await publish(seq)
-            await asyncio.sleep(0.05)
-        while_heard = len(reads)
-        # The last batch is lost: its lines are in the log only.
-        await database_sync_to_async(add_lines)(printer, 21, 22)
+        while_heard = await batches_then_a_lost_one(printer, log_reads)
         seen = await line_ids(client, 22)
         await client.disconnect()
         return while_heard, seen

@@ -12,10 +12,11 @@ from django.contrib.auth import get_user_model
 from django.utils import timezone
 
 from printers import live
-from printers.models import Printer, ResponseLine
+from printers.models import Printer
 from printers.terminal import Session
 from printhost.access import issue_key
 from printhost.models import ApiKey, PrinterRole, Role
+from tests.live.conftest import add_lines, batches_then_a_lost_one
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -28,6 +29,21 @@ def fresh_layer() -> Iterator[None]:
     channel_layers.backends.clear()
 
 
+async def open_session(
+    printer: Printer, key: str
+) -> tuple[asyncio.Server, asyncio.StreamReader, asyncio.StreamWriter, bytes]:
+    """A terminal server for *printer* on a free port, a client that sent *key*,
+    and the greeting it got (the session watches the printer from then on)."""
+    server = await asyncio.start_server(
+        lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
+    )
+    port = server.sockets[0].getsockname()[1]
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(f"{key}\n".encode())
+    greeting = await asyncio.wait_for(reader.readline(), 10)
+    return server, reader, writer, greeting
+
+
 @pytest.fixture
 def watched(make_printer: Callable[..., Printer]) -> tuple[Printer, str]:
     """Printer mk3 and the API key of a user who may watch it."""
@@ -37,15 +53,6 @@ def watched(make_printer: Callable[..., Printer]) -> tuple[Printer, str]:
     return printer, issue_key(user, "terminal")[1]
 
 
-def add_lines(printer: Printer, first: int, last: int) -> None:
-    ResponseLine.objects.bulk_create(
-        ResponseLine(
-            printer=printer, seq=i, time=timezone.now(), text=f"echo {i}", kind=4
-        )
-        for i in range(first, last + 1)
-    )
-
-
 @pytest.mark.usefixtures("quiet_feed")
 def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
     watched: tuple[Printer, str],
@@ -53,13 +60,7 @@ def test_a_terminal_client_catches_up_from_the_log_when_a_live_message_is_lost(
     printer, key = watched
 
     async def scenario() -> list[str]:
-        server = await asyncio.start_server(
-            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
-        )
-        port = server.sockets[0].getsockname()[1]
-        reader, writer = await asyncio.open_connection("127.0.0.1", port)
-        writer.write(f"{key}\n".encode())
-        greeting = await asyncio.wait_for(reader.readline(), 10)
+        server, reader, writer, greeting = await open_session(printer, key)
         assert greeting.startswith(b"// printhost: mk3 as watcher"), greeting
         await database_sync_to_async(add_lines)(printer, 1, 3)
         got = [
@@ -83,33 +84,10 @@ def test_a_terminal_that_hears_live_batches_reads_the_log_only_once_they_stop(
     """As the websocket feed: no periodic re-read while batches come, and the lines
     of a batch lost after the last one heard still arrive from the log."""
     printer, key = watched
-    reads = log_reads
-
-    async def publish(seq: int) -> None:
-        await database_sync_to_async(add_lines)(printer, seq, seq)
-        line = live.line_dict(seq, timezone.now(), f"echo {seq}", 4)
-        await channel_layers["default"].group_send(
-            live.group_for(printer.pk),
-            {"type": "live.event", "printer_id": printer.pk,
-             "event": {"type": "lines", "lines": [line]}},
-        )  # fmt: skip
 
     async def scenario() -> tuple[int, list[str]]:
-        server = await asyncio.start_server(
-            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
-        )
-        port = server.sockets[0].getsockname()[1]
-        reader, writer = await asyncio.open_connection("127.0.0.1", port)
-        writer.write(f"{key}\n".encode())
-        await asyncio.wait_for(reader.readline(), 10)
-        reads.clear()
-        # Batches every 0.05 s over five re-read periods.
-        for seq in range(1, 21):
-            await publish(seq)
-            await asyncio.sleep(0.05)
-        while_heard = len(reads)
-        # The last batch is lost: its lines are in the log only.
-        await database_sync_to_async(add_lines)(printer, 21, 22)
+        server, reader, writer, _ = await open_session(printer, key)
+        while_heard = await batches_then_a_lost_one(printer, log_reads)
         got = [
             (await asyncio.wait_for(reader.readline(), 10)).decode() for _ in range(22)
         ]
@@ -134,13 +112,7 @@ def test_a_terminal_session_ends_when_its_key_is_revoked(
         ApiKey.objects.update(revoked_at=timezone.now())
 
     async def scenario() -> tuple[bytes, bytes]:
-        server = await asyncio.start_server(
-            lambda r, w: Session(printer, r, w).run(), "127.0.0.1", 0
-        )
-        port = server.sockets[0].getsockname()[1]
-        reader, writer = await asyncio.open_connection("127.0.0.1", port)
-        writer.write(f"{key}\n".encode())
-        await asyncio.wait_for(reader.readline(), 10)
+        server, reader, writer, _ = await open_session(printer, key)
         await database_sync_to_async(revoke)()
         said = await asyncio.wait_for(reader.readline(), 10)
         end = await asyncio.wait_for(reader.read(), 10)
