@@ -155,20 +155,36 @@ class GrblProtocol:
             line = self._prepare(text, None)
         except CommandRejected:
             return True
-        blocker = self._blocker(line)
-        if blocker == _WAIT_SETTLED:
-            self._want_settled = True
-        return blocker is None
+        return self._hold(line) is None
 
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
         self._now = now
         line = self._prepare(text, tag)
-        blocker = self._blocker(line)
+        blocker = self._hold(line)
         if blocker is not None:
-            if blocker == _WAIT_SETTLED:
-                self._want_settled = True
             raise LocalProtocolError(f"cannot send '{line.text}' now: {blocker}")
+        self._queue(line, now)
+
+    def offer(self, text: str, now: float, *, tag: object = None) -> bool:
+        """`send` when `can_send` would say yes, preparing the line once; False (the
+        line left out) when it cannot go now. A line GRBL could never take raises
+        CommandRejected."""
+        self._now = now
+        line = self._prepare(text, tag)
+        if self._hold(line) is not None:
+            return False
+        self._queue(line, now)
+        return True
+
+    def _hold(self, line: Line) -> str | None:
+        """`_blocker`; a line waiting for GRBL to settle asks for a report."""
+        blocker = self._blocker(line)
+        if blocker == _WAIT_SETTLED:
+            self._want_settled = True
+        return blocker
+
+    def _queue(self, line: Line, now: float) -> None:
         if line.sync:
             self._want_settled = False
         if not self.in_flight:

@@ -8,8 +8,8 @@ Calling pattern, once per turn of the worker loop:
     protocol.receive_data(transport.read(timeout), now)   # b"" = nothing arrived
     while (event := protocol.next_event()) is not None:
         handle(event)
-    while protocol.can_send(text):                        # the window has room
-        protocol.send(text, now, tag=...)
+    while protocol.offer(text, now, tag=...):             # the window took it
+        text = next command
     transport.write(protocol.data_to_send())
     if deadline := protocol.next_deadline(): wait at most until it, then
     protocol.handle_timeout(now)
@@ -44,6 +44,14 @@ class LinkProtocol(Protocol):
 
         Raises CommandRejected for a line the firmware cannot take (too long, not
         ASCII, empty). The caller gets Ack(tag) or CommandFailed(tag) later.
+        """
+        ...
+
+    def offer(self, text: str, now: float, *, tag: object = None) -> bool:
+        """`send` *text* if `can_send` would allow it now, checking the line once;
+        False, and nothing queued, when the window has no room for it yet.
+
+        Raises CommandRejected, as send() does, for a line the firmware cannot take.
         """
         ...
 

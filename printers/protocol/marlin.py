@@ -313,7 +313,9 @@ class MarlinProtocol(ReplyHandling):
         live = window.live
         if live and len(live) >= self._max_lines():
             return False  # W2 whatever the line (room_for), so it is not framed
-        return self._fits(self._line_for(text.strip()))
+        line = self._line_for(text.strip())
+        window.frame(line)
+        return self._fits(line)
 
     def _line_for(self, text: str) -> Line:
         """The Line for *text*: the one the last can_send built when it is the same
@@ -330,36 +332,58 @@ class MarlinProtocol(ReplyHandling):
         return line
 
     def _fits(self, line: Line) -> bool:
-        """W2, W3: room for *line* (or for the M110 that must go first, F2)."""
+        """W2, W3: room for *line*, framed (or for the M110 that must go first, F2)."""
         window = self._window
         if line.numbered and window.need_m110:
             line = m110_line(0, None)
-        window.frame(line)
+            window.frame(line)
         return window.room_for(line, self._max_lines())
 
     def send(self, text: str, now: float, *, tag: object = None) -> None:
         """Queue one command; Ack(tag) follows its ok. See F1-F4 for framing."""
-        self._window.advance(now)
-        line = self._line_for(_validate(text))
+        text = _validate(text)
+        if self.offer(text, now, tag=tag):
+            return
+        if self.in_flight:
+            raise LocalProtocolError(f"window full: cannot send {text!r} now")
+        # Nothing in flight and no room all the same: a drain (R1) holds the wire.
+        # offer() got past its early answers then, so the line is its last one.
+        line = self._asked
+        assert line is not None
         self._asked = None  # the line is the window's now: never handed out again
+        self._window.enqueue(line)
+        self._pump()
+
+    def offer(self, text: str, now: float, *, tag: object = None) -> bool:
+        """`send` when `can_send` would say yes, framing the line once; False (the
+        line left out) when the window has no room for it now."""
+        window = self._window
+        window.advance(now)
+        if window.queued or window.rewinding:
+            return False
+        live = window.live
+        if live and len(live) >= self._max_lines():
+            return False  # W2 whatever the line (room_for), so it is not framed
+        line = self._line_for(_validate(text))
         line.tag = tag
         if line.m110 is not None:
             line.internal = tag is None  # as m110_line makes it
-        self._window.frame(line)
+        window.frame(line)
         if len(line.wire) > self._max_length:
+            self._asked = None
             raise CommandRejected(
                 f"line {line.wire!r} is {len(line.wire)} characters on the wire; the "
                 f"firmware takes at most {self._max_length} and truncates the rest"
             )
-        window = self._window
-        fits = not window.queued and not window.rewinding and self._fits(line)
-        if not fits and self.in_flight:
-            raise LocalProtocolError(f"window full: cannot send {line.text!r} now")
-        if fits and not (line.numbered and window.need_m110):
-            window.go_live(line)  # what enqueue() and the pump would do, at once
-        else:
-            window.enqueue(line)
+        if not self._fits(line):
+            return False
+        self._asked = None  # the line is the window's now: never handed out again
+        if line.numbered and window.need_m110:
+            window.enqueue(line)  # behind the M110 that starts numbering (F2)
             self._pump()
+        else:
+            window.go_live(line)  # what enqueue() and the pump would do, at once
+        return True
 
     def send_emergency(self, text: str, now: float) -> None:
         """Write *text* unnumbered ahead of everything unwritten, ignoring the window."""

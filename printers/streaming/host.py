@@ -60,9 +60,6 @@ class StreamHost(StreamControl):
         self._max_steps = max_steps
         self._events: deque[HostEvent] = deque()
         self._pending: dict[int, Line] = {}
-        #: The line `wait for ack` found room for in this advance(): the protocol
-        #: has not changed since, so `read cursor` need not ask it again.
-        self._cleared: Line | None = None
         self._requested: str = ""
         #: False when the printer paused/resumed itself (//action:paused, resumed).
         self._with_script = True
@@ -149,7 +146,6 @@ class StreamHost(StreamControl):
         """Send emergencies, then step the active stream until it must wait."""
         while self.emergency_queue:
             self.protocol.send_emergency(self.emergency_queue.popleft(), now)
-        self._cleared = None
         # Each step advances the stream by one command state (`_on_<state>`);
         # False when it has to wait.
         handlers = _HANDLERS
@@ -236,22 +232,23 @@ class StreamHost(StreamControl):
         line = self._pending[stream.id]
         if line.text.startswith("[ESP"):
             stream.move(S.SEND_ESP_COMMAND)
-        elif line is self._cleared or self.protocol.can_send(line.text):
-            self._cleared = None
-            stream.move(S.SEND_GCODE_COMMAND)
-            return self._on_send_gcode_command(stream, now)
-        else:
-            stream.move(S.WAIT_FOR_ACK)
-            return False
-        return True
+            return True
+        stream.move(S.SEND_GCODE_COMMAND)
+        return self._on_send_gcode_command(stream, now)
 
     def _on_send_gcode_command(self, stream: Stream, now: float) -> bool:
-        line = self._pending.pop(stream.id)
+        """The protocol takes the line now (`offer`), or the stream waits for room."""
+        line = self._pending[stream.id]
         try:
-            self.protocol.send(line.text, now, tag=(stream, line))
+            taken = self.protocol.offer(line.text, now, tag=(stream, line))
         except CommandRejected as error:
+            del self._pending[stream.id]
             self._fail(stream, f"line {line.index + 1}: {error}")
             return True
+        if not taken:
+            stream.move(S.WAIT_FOR_ACK)
+            return False
+        del self._pending[stream.id]
         if line.index == CLOSING:
             stream.move(S.WAIT_FOR_ACK)
             return True
@@ -283,10 +280,10 @@ class StreamHost(StreamControl):
             stream.move(S.END)
             self._finish(stream, "completed")
             return True
-        line = self._pending.get(stream.id)
-        if (line is None and stream.eof) or (line and not self._can_go(line)):
+        if stream.eof and stream.id not in self._pending:
             return False
-        self._cleared = line
+        # A line waiting for room is offered again (READ_CURSOR on): the protocol
+        # says at once whether it goes.
         stream.move(S.READY_TO_READ_CURSOR)
         return self._on_ready_to_read_cursor(stream, now)
 
@@ -313,9 +310,6 @@ class StreamHost(StreamControl):
         text = self.protocol.closing_sync
         stream.sync = "owed" if text else "done"
         return Line(CLOSING, text) if text else None
-
-    def _can_go(self, line: Line) -> bool:
-        return line.text.startswith("[ESP") or self.protocol.can_send(line.text)
 
     def _fail(self, stream: Stream, message: str) -> None:
         stream.message = message

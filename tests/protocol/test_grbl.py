@@ -265,6 +265,28 @@ def test_it_counts_characters_up_to_rx_buffer() -> None:
         protocol.send("G", 0.0)
 
 
+def test_offer_queues_only_what_can_send_allows() -> None:
+    protocol = make()
+    assert fill(protocol, "G1X1") == 25
+    assert not protocol.offer("G1", 0.0, tag="full")  # 125 + 3 = 128
+    assert protocol.in_flight == 25  # nothing queued
+    assert protocol.offer("G", 0.0, tag="fits")  # 125 + 2 = 127
+    assert protocol.in_flight == 26
+    with pytest.raises(CommandRejected):
+        protocol.offer("G1 X1 ~", 0.0)  # a realtime byte inside a line, never taken
+
+
+@pytest.mark.parametrize("text", EEPROM_WRITES)
+def test_offer_holds_an_eeprom_write_until_grbl_settles(text: str) -> None:
+    protocol = make()
+    protocol.send("G0X0", 0.0, tag="before")
+    assert not protocol.offer(text, 0.0, tag="eeprom")
+    protocol.data_to_send()
+    protocol.receive_data(b"ok\n<Idle|MPos:0,0,0>\n", 0.1)
+    assert protocol.offer(text, 0.2, tag="eeprom")
+    assert protocol.data_to_send() == (as_wire(text) + "\n").encode()
+
+
 def test_an_answer_frees_the_bytes_of_the_oldest_line() -> None:
     protocol = make()
     protocol.send("G1" + "X1" * 38, 0.0, tag="long")  # 79 chars, 80 bytes

@@ -258,6 +258,45 @@ def test_buffered_window_keeps_to_bufsize_and_rx_buffer() -> None:
     assert proto.can_send("G1 X1 Y2 Z3 E4")  # 15 more bytes fit
 
 
+def offered(proto: MarlinProtocol, firmware: TinyMarlin, job: list[str]) -> bytes:
+    """*job* streamed as the stream host does: each line offered until it is taken."""
+    now, sent, wire = 0.0, 0, b""
+    for _ in range(10_000):
+        while sent < len(job) and proto.offer(job[sent], now, tag=sent):
+            sent += 1
+        wire += exchange(proto, firmware, now)
+        if sent == len(job) and not proto.in_flight:
+            return wire
+        now += 0.01
+    raise AssertionError("job did not finish")
+
+
+@pytest.mark.parametrize("flow", ["ping_pong", "buffered", "auto"])
+def test_offering_lines_writes_what_asking_then_sending_writes(flow: str) -> None:
+    asked = MarlinProtocol(checksums="always", flow=flow)
+    log = run(asked, TinyMarlin(advanced=True), JOB)
+    wire = "".join(f"{e.text}\n" for e in sent_lines(log)).encode()
+    taken = MarlinProtocol(checksums="always", flow=flow)
+    assert offered(taken, TinyMarlin(advanced=True), JOB) == wire
+
+
+def test_offer_leaves_out_a_line_the_window_has_no_room_for() -> None:
+    proto = MarlinProtocol(checksums="never", flow="buffered", rx_buffer=127)
+    long = "G1 X100.000 Y100.000 Z0.300 E12.34567 F1800"  # 43 + 1 bytes
+    assert proto.offer(long, 0.0, tag=1)
+    assert proto.offer(long, 0.0, tag=2)
+    assert not proto.offer(long, 0.0, tag=3)  # 132 > 127
+    assert proto.in_flight == 2
+    assert proto.data_to_send() == f"{long}\n{long}\n".encode()
+    assert proto.offer("G1 X1 Y2 Z3 E4", 0.0, tag=4)  # 15 more bytes fit
+    with pytest.raises(CommandRejected, match="only printable ASCII"):
+        proto.offer("G1 X\x07", 0.0)
+    proto.receive_data(b"ok\nok\nok\n", 0.1)
+    with pytest.raises(CommandRejected, match="truncates"):
+        proto.offer("M117 " + "x" * 100, 0.1)
+    assert proto.in_flight == 0
+
+
 def test_forced_ping_pong_ignores_advanced_ok() -> None:
     proto = MarlinProtocol(checksums="always", flow="ping_pong")
     log = run(proto, TinyMarlin(advanced=True), JOB[:5])
