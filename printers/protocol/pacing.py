@@ -13,8 +13,7 @@ P1  Bytes go out one after another at 10/baud seconds each: a write at *now* end
     at max(now, the end of the previous writes) + size * 10/baud (`busy_until`).
 P2  While at least two lines are in flight and the wire is busy until t, the worker
     reads no sooner than t - margin (`read_at`): the margin covers waking up and
-    refilling the window before the wire runs dry. With one line in flight
-    (ping-pong, or the end of a job) there is nothing to gather: read at once.
+    refilling the window before the wire runs dry. One line in flight: P5.
 P2a The margin is MARGIN_FACTOR times the worker's own turnaround (a moving average
     of how late the write after a paced wake-up came, sleep overshoot included),
     kept between MIN_MARGIN and MAX_MARGIN: a slow or busy computer wakes earlier
@@ -23,15 +22,31 @@ P4  A read that ended inside a reply line: the rest of the line comes at the bau
     rate too. The worker waits, in the same turn of its loop, until a line as long
     as the recent ones (`reply_bytes`, a moving average of whole lines read) would
     be complete (`rest_at`), and reads again: a reply cut in two costs one turn.
+P5  With one line in flight (ping-pong, the only flow stock Marlin offers, or the
+    end of a job) its reply cannot be whole before the line has left the wire, the
+    firmware has answered (`lag`) and a reply line as long as the recent ones has
+    come back: the worker reads no sooner (`read_at`), so one wake-up takes the
+    whole reply where it took one for the reply's first byte and one for the rest
+    (P4); each wake-up costs the worker more than the rest of its turn. The first
+    read after a lone line teaches `lag` (`received`), from when the reply's first
+    byte came (len(data) byte times before the read): a read made at once (no
+    wait, or P3's sample, one wait in PROBE_EVERY) that cut the reply measures
+    it; one that found it whole bounds it from above (lowered to that bound: a
+    link faster than its baud rate soon reads at once); a read after a wait that
+    cut the reply raises `lag` to it (the firmware answers more slowly than
+    thought); a wait that found it whole teaches nothing. An answer later than
+    LONGEST_WAIT is a long command (G28, M109), not the firmware's pace: nothing is
+    learned from it.
 P3  A link faster than its baud rate (a board's native USB port ignores it): a read
     is a sample when the model says more than SLACK_BYTES are still to go out. A
     sample in which the firmware has acknowledged more than SLACK_BYTES of them is
     evidence; EVIDENCE samples of it in a row (one that agrees with the model
-    starts the count again) prove the model wrong for this connection, and P2 is
-    off until `reset()`. One sample is no proof: a stale `ok` left in the port's
-    buffer acknowledges a line at once, and a host preempted between its write
-    and its clock misjudges the write. Every PROBE_EVERY-th wait of P2 is skipped
-    (the worker reads as replies come), so a fast link shows itself while paced.
+    starts the count again) prove the model wrong for this connection, and P2 and
+    P5 are off until `reset()`. One sample is no proof: a stale `ok` left in the
+    port's buffer acknowledges a line at once, and a host preempted between its write
+    and its clock misjudges the write. Every PROBE_EVERY-th wait of P2 and P5 is
+    skipped (the worker reads as replies come), so a fast link shows itself while
+    paced.
 """
 
 from __future__ import annotations
@@ -73,6 +88,8 @@ class Pacer:
         self.turnaround = FIRST_TURNAROUND
         #: P4: bytes of a reply line, newline included (moving average).
         self.reply_bytes = FIRST_REPLY_BYTES
+        #: P5: how long after a lone line has left the wire its reply starts (s).
+        self.lag = 0.0
         self.reset()
 
     def reset(self) -> None:
@@ -87,6 +104,9 @@ class Pacer:
         #: P4: bytes read since the last newline, and when the last read came.
         self._partial = 0
         self._read_at = 0.0
+        #: P5: the end of the lone line on the wire and whether the read is made at
+        #: once, while the next read teaches `lag`.
+        self._lone: tuple[float, bool] | None = None
 
     @property
     def margin(self) -> float:
@@ -108,7 +128,12 @@ class Pacer:
         return max(0.0, self.busy_until - now) / self.byte_time
 
     def received(self, data: bytes, now: float) -> None:
-        """P4: *data* was read at *now* (learns how long reply lines are)."""
+        """P4, P5: *data* was read at *now* (learns how long reply lines are, and
+        after a lone line how long the firmware takes to answer)."""
+        if self._lone is not None:
+            sent, at_once = self._lone
+            self._learn_lag(data, now, sent, at_once=at_once)
+            self._lone = None
         self._read_at = now
         end = data.rfind(b"\n")
         if end < 0:
@@ -136,18 +161,40 @@ class Pacer:
             self._evidence = 0
 
     def read_at(self, now: float, lines_in_flight: int) -> float:
-        """P2: the time to read at (*now* when there is nothing to wait for)."""
-        self._due = None
-        if not self.modelled or lines_in_flight < 2:
+        """P2, P5: the time to read at (*now* when there is nothing to wait for)."""
+        self._due = self._lone = None
+        if not self.modelled or lines_in_flight < 1:
             return now
-        wake = self.busy_until - self.margin
+        lone = lines_in_flight == 1
+        if lone:
+            wake = self.busy_until + self.reply_bytes * self.byte_time + self.lag
+        else:
+            wake = self.busy_until - self.margin
+        if wake > now:
+            self._waits += 1
+            if self._waits % PROBE_EVERY == 0:
+                wake = now  # P3: this read is a sample
+        if lone:
+            self._lone = (self.busy_until, wake <= now)
         if wake <= now:
             return now
-        self._waits += 1
-        if self._waits % PROBE_EVERY == 0:
-            return now  # P3: this read is a sample
-        self._due = min(wake, now + LONGEST_WAIT)
-        return self._due
+        due = min(wake, now + LONGEST_WAIT)
+        if not lone:
+            self._due = due  # P2a learns from the write that answers it
+        return due
+
+    def _learn_lag(
+        self, data: bytes, now: float, sent: float, *, at_once: bool
+    ) -> None:
+        """P5: the first read after a lone line left the wire at *sent*."""
+        lag = now - len(data) * self.byte_time - sent  # when its first byte came
+        if lag > LONGEST_WAIT:
+            return  # a long command, not the firmware's pace
+        if b"\n" in data:  # whole: it came no later than that
+            if at_once:
+                self.lag = max(-LONGEST_WAIT, min(self.lag, lag))
+        elif at_once or lag > self.lag:  # cut: it came just then
+            self.lag = lag
 
     def rest_at(self, now: float) -> float | None:
         """P4: when the reply line the last read cut should be whole (None: no cut)."""
