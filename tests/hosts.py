@@ -135,7 +135,9 @@ class Host:
         shutil.copyfile(_migrated_sqlite(), database)
 
     def shell(self, code: str) -> str:
-        return self.manage("shell", "-c", code).stdout.strip()
+        """What *code* prints, and nothing else: at `-v 0` Django's shell leaves out
+        its first line, which counts the objects it imported."""
+        return self.manage("shell", "-v", "0", "-c", code).stdout.strip()
 
     def query(self, sql: str) -> list[tuple]:
         if self.database_url:
