@@ -8,8 +8,8 @@ LocalProtocolError, as h11's tables do):
     START                  READY_TO_READ_CURSOR
     READY_TO_READ_CURSOR   READ_CURSOR, WAIT_FOR_ACK (end of file), PAUSE, ABORT,
                            ERROR, END
-    READ_CURSOR            SEND_GCODE_COMMAND, SEND_ESP_COMMAND, WAIT_FOR_ACK
-    SEND_GCODE_COMMAND     READY_TO_READ_CURSOR, WAIT_FOR_ACK, ERROR
+    READ_CURSOR            SEND_GCODE_COMMAND, SEND_ESP_COMMAND
+    SEND_GCODE_COMMAND     READY_TO_READ_CURSOR, WAIT_FOR_ACK (no room), ERROR
     SEND_ESP_COMMAND       READY_TO_READ_CURSOR
     WAIT_FOR_ACK           READY_TO_READ_CURSOR, RESEND_GCODE_COMMAND, PAUSE,
                            ABORT, ERROR, END
@@ -21,8 +21,9 @@ LocalProtocolError, as h11's tables do):
     ERROR                  END
     END                    (removed from its queue)
 
-WAIT_FOR_ACK means "the window is full" (or, at the end of the file, "waiting for the
-last acks", the closing sync's too): with more than one command in flight, ESP3D's
+SEND_GCODE_COMMAND offers the line to the protocol, which takes it or says there is no
+room (`LinkProtocol.offer`). WAIT_FOR_ACK means "the window is full" (or, at the end of
+the file, "waiting for the last acks", the closing sync's too): with more than one command in flight, ESP3D's
 ping-pong wait becomes a wait for room. A pause or abort asked for while waiting takes
 effect at once, since no command is half-sent there.
 """
@@ -110,9 +111,7 @@ TRANSITIONS: dict[CommandState, frozenset[CommandState]] = {
     _S.READY_TO_READ_CURSOR: frozenset(
         {_S.READ_CURSOR, _S.WAIT_FOR_ACK, _S.PAUSE, _S.ABORT, _S.ERROR, _S.END}
     ),
-    _S.READ_CURSOR: frozenset(
-        {_S.SEND_GCODE_COMMAND, _S.SEND_ESP_COMMAND, _S.WAIT_FOR_ACK}
-    ),
+    _S.READ_CURSOR: frozenset({_S.SEND_GCODE_COMMAND, _S.SEND_ESP_COMMAND}),
     _S.SEND_GCODE_COMMAND: frozenset(
         {_S.READY_TO_READ_CURSOR, _S.WAIT_FOR_ACK, _S.ERROR}
     ),
