@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import deque
 from typing import TYPE_CHECKING
 
-from printers.protocol.errors import CommandRejected, LocalProtocolError
+from printers.protocol.errors import LocalProtocolError
 from printers.protocol.events import (
     Ack,
     CommandFailed,
@@ -18,8 +18,9 @@ from printers.protocol.events import (
 )
 from printers.protocol.grbl_codes import REALTIME_COMMANDS
 from printers.protocol.grbl_events import BuildOptions, CheckMode
-from printers.protocol.grbl_lines import Line, check_settings, prepare_line
+from printers.protocol.grbl_lines import Line, check_settings
 from printers.protocol.grbl_responses import Answer, parse_response
+from printers.protocol.grbl_sending import Sending
 
 if TYPE_CHECKING:
     from printers.protocol.events import Event
@@ -70,13 +71,12 @@ _POLL_RETRY = 1.0
 _SETTLED_STATES = frozenset({"Idle", "Alarm", "Check"})
 #: Seconds between `?` polls while an EEPROM write waits for the machine to settle.
 _SETTLE_POLL = 0.1
-_WAIT_SETTLED = "an EEPROM write waits until GRBL reports Idle"
 #: A "line" this long without a newline is noise; hand it over rather than grow forever.
 _MAX_LINE_BYTES = 1024
 _SOFT_RESET = "\x18"
 
 
-class GrblProtocol:
+class GrblProtocol(Sending):
     """The GRBL side of LinkProtocol: bytes and `now` in, bytes and events out.
 
     *rx_buffer*: bytes of unanswered lines GRBL can hold (its ring keeps 128).
@@ -133,7 +133,7 @@ class GrblProtocol:
         self._waiting: deque[Line] = deque()  # written, not yet answered
         self._written_at: deque[float] = deque()  # when each waiting line was written
         #: The last text prepared and what GRBL gets of it (wire text, EEPROM write,
-        #: dwell): can_send() and send() prepare the same line in turn.
+        #: dwell): a line offered again while it does not fit is prepared once.
         self._prepared: tuple[str | None, str, bool, float] = (None, "", False, 0.0)
         self._realtime: list[tuple[bytes, str]] = []
         self._now: float | None = None
@@ -143,54 +143,7 @@ class GrblProtocol:
         self._last_poll_at: float | None = None
         self._poll_pending_since: float | None = None
 
-    # -- sending -------------------------------------------------------------------
-
-    def can_send(self, text: str) -> bool:
-        """True when *text* fits GRBL's RX buffer now and no sync rule holds it back.
-
-        A line send() would reject gives True, so that send() raises and says why
-        instead of the stream waiting forever.
-        """
-        try:
-            line = self._prepare(text, None)
-        except CommandRejected:
-            return True
-        return self._hold(line) is None
-
-    def send(self, text: str, now: float, *, tag: object = None) -> None:
-        """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
-        self._now = now
-        line = self._prepare(text, tag)
-        blocker = self._hold(line)
-        if blocker is not None:
-            raise LocalProtocolError(f"cannot send '{line.text}' now: {blocker}")
-        self._queue(line, now)
-
-    def offer(self, text: str, now: float, *, tag: object = None) -> bool:
-        """`send` when `can_send` would say yes, preparing the line once; False (the
-        line left out) when it cannot go now. A line GRBL could never take raises
-        CommandRejected."""
-        self._now = now
-        line = self._prepare(text, tag)
-        if self._hold(line) is not None:
-            return False
-        self._queue(line, now)
-        return True
-
-    def _hold(self, line: Line) -> str | None:
-        """`_blocker`; a line waiting for GRBL to settle asks for a report."""
-        blocker = self._blocker(line)
-        if blocker == _WAIT_SETTLED:
-            self._want_settled = True
-        return blocker
-
-    def _queue(self, line: Line, now: float) -> None:
-        if line.sync:
-            self._want_settled = False
-        if not self.in_flight:
-            self._progress_at = now
-            self._stall_reported = False
-        self._outbox.append(line)
+    # -- sending (what fits GRBL's buffer: grbl_sending.py) ------------------------
 
     def send_emergency(self, text: str, now: float) -> None:
         """Queue a realtime byte ahead of everything not yet written; never counted."""
@@ -325,34 +278,6 @@ class GrblProtocol:
         return self._unreported_since + self.ack_timeout
 
     # -- internals -----------------------------------------------------------------
-
-    def _prepare(self, text: str, tag: object) -> Line:
-        """prepare_line, parsing each text once (CommandRejected as it raises)."""
-        known, wire, sync, dwell = self._prepared
-        if text is not known and text != known:
-            ready = prepare_line(text, None, self.max_line_length, compact=self.compact)
-            wire, sync, dwell = ready.text, ready.sync, ready.dwell
-            self._prepared = (text, wire, sync, dwell)
-        return Line(wire, tag, sync, dwell)
-
-    def _blocker(self, line: Line) -> str | None:
-        """Why *line* cannot go now, or None when it can."""
-        if self._reset_sent_at is not None:
-            return "a soft reset was sent and GRBL has not restarted yet"
-        used, sync = 0, False
-        for queue in (self._outbox, self._waiting):
-            for other in queue:
-                used += len(other.text) + 1
-                sync = sync or other.sync
-        if sync:
-            return "an EEPROM write is waiting for its answer"
-        if line.sync and (self._outbox or self._waiting):
-            return "an EEPROM write goes only when nothing else is in flight"
-        if line.sync and self.wait_for_idle and not self._settled:
-            return _WAIT_SETTLED
-        if used + line.size > self.rx_buffer:
-            return f"GRBL's RX buffer has {self.rx_buffer - used} bytes free"
-        return None
 
     def _read_line(self, raw: bytes, now: float) -> None:
         text = raw.decode("utf-8", errors="replace").strip()

@@ -1,9 +1,9 @@
 """Marlin host protocol, sans-IO: numbered lines, a byte/line window, resends, timeouts."""
 
 # Rules of MarlinProtocol. Everything that changes the sender's state is listed here;
-# the code below, marlin_replies.py, marlin_window.py, marlin_recovery.py,
-# marlin_deadlines.py, marlin_trust.py and marlin_probe.py only carry them out (h11's
-# _state.py habit).
+# the code below, marlin_sending.py, marlin_replies.py, marlin_window.py,
+# marlin_recovery.py, marlin_deadlines.py, marlin_trust.py and marlin_probe.py only
+# carry them out (h11's _state.py habit).
 #
 # A command is *queued* (send), then *live* (charged to the window, written by
 # data_to_send, waiting for its ok), then acknowledged. A resend makes live lines
@@ -144,11 +144,9 @@ import re
 from collections import deque
 from typing import TYPE_CHECKING
 
-from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import (
     FirmwareReset,
     LinkFailed,
-    Sent,
 )
 from printers.protocol.marlin_probe import PROBE, PROBE_AFTER
 from printers.protocol.marlin_recovery import Recovery
@@ -157,7 +155,8 @@ from printers.protocol.marlin_responses import (
     Reply,
     split_merged,
 )
-from printers.protocol.marlin_window import Line, LineWindow, m110_line, new_line
+from printers.protocol.marlin_sending import Sending
+from printers.protocol.marlin_window import Line, LineWindow
 
 if TYPE_CHECKING:
     from printers.protocol.events import Event
@@ -170,12 +169,14 @@ _NEWLINES = re.compile(rb"\r\n|\r|\n")
 _MAX_PARTIAL = 4096
 
 
-class MarlinProtocol(ReplyHandling):
+class MarlinProtocol(Sending, ReplyHandling):
     """The Marlin side of the LinkProtocol contract (see printers.protocol.link).
 
     Lines and the window live in a LineWindow (marlin_window), acknowledgements,
-    resends and timeouts in a Recovery over it (marlin_recovery); this class frames
-    commands, reads replies and keeps the flow mode.
+    resends and timeouts in a Recovery over it (marlin_recovery); framing and the
+    window's rules are the Sending mixin's (marlin_sending), each reply's meaning
+    ReplyHandling's (marlin_replies); this class reads replies, keeps the flow mode
+    and the statistics.
     """
 
     def __init__(
@@ -305,97 +306,6 @@ class MarlinProtocol(ReplyHandling):
 
     # -- the LinkProtocol contract ---------------------------------------------------
 
-    def can_send(self, text: str) -> bool:
-        """True when *text* may be queued now without breaking the window (W1-W3)."""
-        window = self._window
-        if window.queued or window.rewinding:
-            return False
-        live = window.live
-        if live and len(live) >= self._max_lines():
-            return False  # W2 whatever the line (room_for), so it is not framed
-        line = self._line_for(text.strip())
-        window.frame(line)
-        return self._fits(line)
-
-    def _line_for(self, text: str) -> Line:
-        """The Line for *text*: the one the last can_send built when it is the same
-        command (asked again each turn while the window is full, then sent), so it
-        is framed once."""
-        line = self._asked
-        if (
-            line is None
-            or line.text != text
-            or line.numbered != self._numbering()
-            or line.m110 is not None
-        ):
-            line = self._asked = self._new_line(text, None)
-        return line
-
-    def _fits(self, line: Line) -> bool:
-        """W2, W3: room for *line*, framed (or for the M110 that must go first, F2)."""
-        window = self._window
-        if line.numbered and window.need_m110:
-            line = m110_line(0, None)
-            window.frame(line)
-        return window.room_for(line, self._max_lines())
-
-    def send(self, text: str, now: float, *, tag: object = None) -> None:
-        """Queue one command; Ack(tag) follows its ok. See F1-F4 for framing."""
-        text = _validate(text)
-        if self.offer(text, now, tag=tag):
-            return
-        if self.in_flight:
-            raise LocalProtocolError(f"window full: cannot send {text!r} now")
-        # Nothing in flight and no room all the same: a drain (R1) holds the wire.
-        # offer() got past its early answers then, so the line is its last one.
-        line = self._asked
-        assert line is not None
-        self._asked = None  # the line is the window's now: never handed out again
-        self._window.enqueue(line)
-        self._pump()
-
-    def offer(self, text: str, now: float, *, tag: object = None) -> bool:
-        """`send` when `can_send` would say yes, framing the line once; False (the
-        line left out) when the window has no room for it now."""
-        window = self._window
-        window.advance(now)
-        if window.queued or window.rewinding:
-            return False
-        live = window.live
-        if live and len(live) >= self._max_lines():
-            return False  # W2 whatever the line (room_for), so it is not framed
-        line = self._line_for(_validate(text))
-        line.tag = tag
-        if line.m110 is not None:
-            line.internal = tag is None  # as m110_line makes it
-        window.frame(line)
-        if len(line.wire) > self._max_length:
-            self._asked = None
-            raise CommandRejected(
-                f"line {line.wire!r} is {len(line.wire)} characters on the wire; the "
-                f"firmware takes at most {self._max_length} and truncates the rest"
-            )
-        if not self._fits(line):
-            return False
-        self._asked = None  # the line is the window's now: never handed out again
-        if line.numbered and window.need_m110:
-            window.enqueue(line)  # behind the M110 that starts numbering (F2)
-            self._pump()
-        else:
-            window.go_live(line)  # what enqueue() and the pump would do, at once
-        return True
-
-    def send_emergency(self, text: str, now: float) -> None:
-        """Write *text* unnumbered ahead of everything unwritten, ignoring the window."""
-        self._window.advance(now)
-        self._window.add_emergency(_validate(text))
-
-    def reset_line_numbers(self, now: float) -> None:
-        """Queue `N0 M110 N0`; the next numbered line is N1."""
-        self._window.advance(now)
-        self._window.enqueue(m110_line(0, None))
-        self._pump()
-
     def receive_data(self, data: bytes, now: float) -> None:
         """Feed firmware bytes; b"" only means nothing arrived (the clock still moves)."""
         self._window.advance(now)
@@ -417,20 +327,6 @@ class MarlinProtocol(ReplyHandling):
     def next_event(self) -> Event | None:
         """The next event, or None when more data is needed."""
         return self._events.popleft() if self._events else None
-
-    def data_to_send(self) -> bytes:
-        """All pending wire bytes (emergency lines first); emits Sent for each line."""
-        self._pump()
-        window = self._window
-        if window.outbox:
-            self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
-        elif not window.urgent:
-            return b""
-        lines = window.take_unwritten()
-        for line in lines:
-            self._events.append(Sent(line.wire, line.number, line.resend))
-        self.lines_sent += len(lines)
-        return "".join(f"{line.wire}\n" for line in lines).encode("ascii")
 
     def next_deadline(self) -> float | None:
         """The ack deadline (T1) or the end of a resend drain, whichever is first."""
@@ -460,31 +356,7 @@ class MarlinProtocol(ReplyHandling):
         self._window.clear()
         self._recovery.reset()
 
-    # -- framing and the window ------------------------------------------------------
-
-    def _numbering(self) -> bool:
-        """F1: whether a command sent now is numbered."""
-        return (
-            self._checksums == "always"
-            or (self._checksums == "printing" and self.printing)
-            or self.writing_file
-        )
-
-    def _new_line(self, text: str, tag: object) -> Line:
-        return new_line(text, tag, numbered=self._numbering())
-
-    def _max_lines(self) -> int:
-        """W2: how many lines may be live at once in the flow mode in force
-        (`flow_mode`, spelled out: this is asked several times a line)."""
-        flow = self._flow
-        if flow == "ping_pong" or not (self._advanced or flow == "buffered"):
-            return 1
-        if self._recovery.recovering:
-            return 1 + self._recovery.settled_live()  # W4
-        return self._max_b + 1 if self._advanced else self._bufsize
-
-    def _pump(self) -> None:
-        self._window.pump(self._max_lines())
+    # -- resets and failures -------------------------------------------------------
 
     def _silent_reset(self, banner: str) -> None:
         """R7: the firmware counts from zero again without having said so."""
@@ -494,17 +366,3 @@ class MarlinProtocol(ReplyHandling):
     def _fail(self, message: str) -> None:
         self._events.append(LinkFailed(message))
         self.abandon()
-
-
-def _validate(text: str) -> str:
-    stripped = text.strip()
-    if not stripped:
-        raise CommandRejected(f"empty command {text!r}: there is nothing to send")
-    if stripped.isascii() and stripped.isprintable():  # " " to "~" only
-        return stripped
-    for char in stripped:
-        if not " " <= char <= "~":
-            raise CommandRejected(
-                f"command {stripped!r} holds {char!r}: only printable ASCII can be sent"
-            )
-    return stripped
