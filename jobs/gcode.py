@@ -106,7 +106,7 @@ def command_of(raw: bytes) -> str:
     # character-by-character pass below is for the rare tab or exotic byte.
     if not (text.isascii() and text.isprintable()):
         text = "".join(" " if char.isspace() else char for char in text)
-    if _MESSAGE.match(text):
+    if text[0] in "Mm" and _MESSAGE.match(text):
         text = _ascii_message(text)
     return text
 

@@ -318,7 +318,7 @@ class MarlinProtocol(Sending, ReplyHandling):
             for raw in lines:
                 # Undecodable bytes become U+FFFD: junk that only `start` may follow.
                 text = raw.decode("utf-8", errors="replace").strip()
-                if text.startswith("ok N") and self._quick_ok(text):
+                if text.startswith("ok") and self._quick_ok(text):
                     continue
                 for part in split_merged(text) if text else ():
                     self._handle_line(part)

@@ -289,12 +289,14 @@ class Recovery(Deadlines):
 
     def _is_stale(self, n: int | None) -> bool:
         """ok N<n> for a line acked already (a second copy of an M110): ignore it."""
+        if n is None:
+            return False
         oldest = next(
             (line.number for line in self._window.live if line.number is not None),
             None,
         )
         first = self._window.history.first
-        return n is not None and oldest is not None and first <= n < oldest
+        return oldest is not None and first <= n < oldest
 
     def _ack_through(self, n: int) -> bool:
         """ok N<n>: ack live lines through line n; False when n is not live."""

@@ -53,15 +53,19 @@ class ReplyHandling:
         self._previous = reply
 
     def _quick_ok(self: MarlinProtocol, text: str) -> bool:
-        """`ok N<n> P<p> B<b>`, the reply to nearly every line of a job: handled
-        as `_handle_line` and `_on_ok` would, without classifying it first. False
-        (nothing done) for any other line."""
-        match = _ADVANCED_OK_LINE.fullmatch(text)
-        if match is None:
-            return False
+        """`ok` (ping-pong) or `ok N<n> P<p> B<b>` (ADVANCED_OK), the reply to
+        nearly every line of a job: handled as `_handle_line` and `_on_ok` would,
+        without classifying it first. False (nothing done) for any other line."""
+        if text == "ok":
+            number = free = None
+        else:
+            match = _ADVANCED_OK_LINE.fullmatch(text)
+            if match is None:
+                return False
+            number, free = int(match[1]), int(match[2])
         self._file_list = False
         self._events.append(Received(text, LineKind.ACK))
-        self._ok(int(match[1]), int(match[2]), advanced=True, temperatures=False)
+        self._ok(number, free, advanced=free is not None, temperatures=False)
         # What the resend rules ask of the line before a Resend is its kind.
         self._previous = PLAIN_OK
         return True

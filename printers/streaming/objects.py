@@ -64,6 +64,8 @@ _PRINTING = re.compile(
 )
 _STOP = re.compile(r"^\s*;\s*stop printing object\b", re.I)
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+#: A command's arguments as most lines write them (`_words`).
+_PLAIN_WORDS = re.compile(r"[A-Z][-+]?[0-9.]+(?: [A-Z][-+]?[0-9.]+)*")
 _E_WORD = re.compile(r"\s*[Ee]\s*[-+]?(?:\d+\.?\d*|\.\d+)")
 _CODE = re.compile(r"^\s*([GMgm])\s*0*(\d+)(?![.\d])")
 _NAME = re.compile(r"NAME=(\"[^\"]*\"|'[^']*'|\S+)", re.I)
@@ -363,17 +365,14 @@ def _klipper_label(text: str) -> str | None:
 def _words(args: str) -> dict[str, float]:
     """The words of a command's arguments, by upper-case letter.
 
-    Most lines are words of a letter and a plain number, one space apart
-    (`X12.5 Y3 E.04`): read so without a regex; anything else (`X 12`, `X1Y2`,
-    an exponent, which G-code has not) goes through _WORD.
+    Most lines are words of an upper-case letter and a plain number, one space
+    apart (`X12.5 Y3 E.04`): checked so by one match (_PLAIN_WORDS), then split;
+    anything else (`X 12`, `X1Y2`, `x1`, an exponent, which G-code has not) goes
+    through _WORD.
     """
-    words = {}
-    for word in args.split(" "):
-        letter, value = word[:1], word[1:]
-        digits = (value[1:] if value[:1] in "+-" else value).replace(".", "", 1)
-        if not (word.isascii() and letter.isalpha() and digits.isdigit()):
-            break
-        words[letter.upper()] = float(value)
-    else:
-        return words
+    if _PLAIN_WORDS.fullmatch(args):
+        try:  # "X1.2.3" passes the pattern, not float(): _WORD reads it
+            return {word[0]: float(word[1:]) for word in args.split(" ")}
+        except ValueError:
+            pass
     return {letter.upper(): float(value) for letter, value in _WORD.findall(args)}
