@@ -37,12 +37,12 @@ class Sending:
 
     def send(self: GrblProtocol, text: str, now: float, *, tag: object = None) -> None:
         """Queue one cleaned command; Ack(tag) or CommandFailed(tag) follows later."""
-        self._now = now
+        if self.offer(text, now, tag=tag):
+            return
         line = self._prepare(text, tag)
-        blocker = self._hold(line)
-        if blocker is not None:
-            raise LocalProtocolError(f"cannot send '{line.text}' now: {blocker}")
-        self._queue(line, now)
+        raise LocalProtocolError(
+            f"cannot send '{line.text}' now: {self._blocker(line)}"
+        )
 
     def offer(self: GrblProtocol, text: str, now: float, *, tag: object = None) -> bool:
         """`send` when `can_send` would say yes, preparing the line once; False (the

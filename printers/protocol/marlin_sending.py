@@ -60,11 +60,10 @@ class Sending:
         self: MarlinProtocol, text: str, now: float, *, tag: object = None
     ) -> None:
         """Queue one command; Ack(tag) follows its ok. See F1-F4 for framing."""
-        text = _validate(text)
-        if self.offer(text, now, tag=tag):
+        if self.offer(text, now, tag=tag):  # CommandRejected for a bad line
             return
         if self.in_flight:
-            raise LocalProtocolError(f"window full: cannot send {text!r} now")
+            raise LocalProtocolError(f"window full: cannot send {text.strip()!r} now")
         # Nothing in flight and no room all the same: a drain (R1) holds the wire.
         # offer() got past its early answers then, so the line is its last one.
         line = self._asked
