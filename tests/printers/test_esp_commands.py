@@ -6,8 +6,9 @@ import json
 
 import pytest
 
+from jobs.commands import send_command
 from jobs.models import Job
-from jobs.services import send_command, storage_dir
+from jobs.services import storage_dir
 from printers.models import QueuedCommand
 from printers.sample_gcode import commands_of, segments
 from printers.streaming.esp import EspError, EspFileRequest, EspStreamControl, parse_esp
@@ -109,7 +110,10 @@ def test_esp701_controls_and_reports_the_running_stream(worker, make_job):
     printer = worker.printer
     text = segments(3000)
     job = make_job(printer, text)
-    wait_for(lambda: worker.host.printing, 10, "the job", step=worker.tick)
+    # Paused once some lines are acknowledged, so that `processed` has counted them
+    # (a loaded machine could pause before the first ok was read).
+    wait_for(lambda: worker.host.printing and worker.host.current_stream.acked > 0,
+             10, "the job's first acks", step=worker.tick)  # fmt: skip
 
     assert reply_of(send_command(printer, "[ESP701]action=PAUSE"), worker) == "ok"
     wait_for(lambda: Job.objects.get(pk=job.pk).state == "paused", 10, "pause",
