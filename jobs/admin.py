@@ -7,9 +7,10 @@ from typing import TYPE_CHECKING
 from django.contrib import admin, messages
 
 from jobs import analysing
+from jobs.commands import request_action
 from jobs.history import HistoryEntry
 from jobs.models import ACTIVE_STATES, FarmJob, FileAnalysis, Job
-from jobs.services import delete_job_file, request_action
+from jobs.services import delete_job_file
 from printers.models import Printer
 
 if TYPE_CHECKING:

@@ -20,7 +20,6 @@ from jobs.gcode import BadGcode, FileFacts, inspect_file
 from jobs.models import Job
 from jobs.paths import inside
 from printers.driver import LinkConfig
-from printers.models import Printer, QueuedCommand
 from printers.worker.spool import next_position
 
 if TYPE_CHECKING:
@@ -29,9 +28,9 @@ if TYPE_CHECKING:
     from django.contrib.auth.models import AbstractBaseUser
     from django.core.files.uploadedfile import UploadedFile
 
+    from printers.models import Printer
+
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._ -]+")
-#: Commands that must skip every queue (Marlin's emergency parser set).
-EMERGENCY_COMMANDS = frozenset({"M112", "M108", "M410"})
 
 
 def storage_dir(printer: Printer) -> Path:
@@ -306,64 +305,6 @@ def _create_job(
         )
         request_analysis(job)
     return job
-
-
-def send_command(printer: Printer, text: str, *, origin: str = "") -> QueuedCommand:
-    """Queue a command (or several lines) for the printer; emergencies skip the queue.
-
-    Only blanks and line ends are trimmed: Python counts GRBL's realtime bytes 0x84
-    and 0x85 (jog cancel) as whitespace too.
-    """
-    text = text.strip(" \t\r\n")
-    if not text:
-        raise ValueError("empty command")
-    if "\x00" in text:
-        raise ValueError("a command cannot hold a NUL byte")
-    word = text.split()[0].upper() if text.split() else ""
-    kind = (
-        QueuedCommand.Kind.EMERGENCY
-        if word in EMERGENCY_COMMANDS and "\n" not in text
-        else QueuedCommand.Kind.COMMAND
-    )
-    return QueuedCommand.objects.create(
-        printer=printer, kind=kind, text=text, origin=origin
-    )
-
-
-def emergency_stop(printer: Printer, *, origin: str = "") -> QueuedCommand:
-    """Stop the machine now: M112 (Marlin) or feed hold + soft reset (GRBL)."""
-    return QueuedCommand.objects.create(
-        printer=printer, kind=QueuedCommand.Kind.EMERGENCY, text="M112", origin=origin
-    )
-
-
-def request_action(printer: Printer, action: str, *, origin: str = "") -> QueuedCommand:
-    """Ask the worker to pause, resume, abort, accept a clear bed or reconnect.
-
-    `prompt:<n>` answers the printer's host prompt with button n (the worker checks
-    it against the dialog shown).
-    """
-    prompt = f"{QueuedCommand.Action.PROMPT}:"
-    if action.startswith(f"{QueuedCommand.Action.SD_DELETE}:"):
-        from jobs.sdcard import card_name
-
-        card_name(action.partition(":")[2])  # SdRefused (a ValueError) if unusable
-    elif action.startswith(prompt):
-        choice = action[len(prompt) :]
-        if not (choice.isdigit() and len(choice) <= 2):
-            raise ValueError(
-                f"the prompt's choice must be a button index, not {choice!r}"
-            )
-    elif action not in QueuedCommand.Action.values or action in (
-        QueuedCommand.Action.PROMPT,
-        QueuedCommand.Action.SD_DELETE,
-    ):
-        raise ValueError(
-            f"unknown action {action!r}; use one of {', '.join(QueuedCommand.Action.values)}"
-        )
-    return QueuedCommand.objects.create(
-        printer=printer, kind=QueuedCommand.Kind.ACTION, text=action, origin=origin
-    )
 
 
 def reorder_queue(printer: Printer, ids: list[int]) -> list[Job]:

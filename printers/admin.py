@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from django.contrib import admin, messages
 
-from jobs.services import emergency_stop, request_action
+from jobs.commands import emergency_stop, request_action
 from printers.hosts import WorkerHost
 from printers.models import Printer, QueuedCommand, ResponseLine
 

@@ -2,7 +2,7 @@
 
 HTTP views, the slicer dialects, websockets and the terminal send commands and
 actions through here: the role check, the intent written for the worker
-(`jobs.services`) and the audit entry, in that order, always. An `[ESPxxx]`
+(`jobs.commands`) and the audit entry, in that order, always. An `[ESPxxx]`
 command's reply goes back to the client that asked (`wait_reply`); everything the
 printer says reaches every client through the response log.
 """
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from channels.db import database_sync_to_async
 
-from jobs import services
+from jobs import commands
 from jobs.models import running_job
 from printers.models import Printer, QueuedCommand
 from printhost import audit
@@ -54,10 +54,10 @@ def run_command(caller: Caller, printer: Printer, text: str) -> QueuedCommand:
     """
     check_operator(caller, printer)
     words = text.split()
-    emergency = bool(words) and words[0].upper() in services.EMERGENCY_COMMANDS
+    emergency = bool(words) and words[0].upper() in commands.EMERGENCY_COMMANDS
     if words and not emergency and current_state(printer) not in ONLINE_STATES:
         raise PrinterOffline("Printer offline")
-    row = services.send_command(printer, text, origin=caller.origin)
+    row = commands.send_command(printer, text, origin=caller.origin)
     audit.record(caller, "command", printer=printer, detail=row.text)
     return row
 
@@ -89,9 +89,9 @@ def run_action(
     """
     check_operator(caller, printer)
     if action == "emergency_stop":
-        row = services.emergency_stop(printer, origin=caller.origin)
+        row = commands.emergency_stop(printer, origin=caller.origin)
     else:
-        row = services.request_action(printer, action, origin=caller.origin)
+        row = commands.request_action(printer, action, origin=caller.origin)
     audit.record(
         caller,
         audit_as or action,

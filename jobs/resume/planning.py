@@ -22,13 +22,13 @@ from django.db import transaction
 from django.db.models import Min
 
 from jobs.analysing import analysis_of
+from jobs.commands import request_action
 from jobs.eta import IN_FLIGHT
 from jobs.gcode import BadGcode, iter_commands
 from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
 from jobs.paths import PathRefused
 from jobs.resume.preamble import ResumePoint, build_preamble
 from jobs.resume.state import MachineState, StateReader
-from jobs.services import request_action
 from printers import broadcast
 from printers.models import QueuedCommand
 from printers.worker.spool import next_position

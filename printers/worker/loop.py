@@ -43,6 +43,7 @@ from printers.worker.reactions import Reactions
 from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
 from printers.worker.sdcard import SdCardWatch
+from printers.worker.spooling import Spooling
 from printers.worker.status import PrinterStatus
 from printers.worker.turns import DatabaseTurns
 from printers.worker.wakeup import Wakeups
@@ -55,7 +56,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger("printhost.worker")
 
 
-class PrinterWorker(PortHandling, Reactions, DatabaseTurns):
+class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
     """Drives one printer: owns its port, protocol, stream host and database rows."""
 
     def __init__(

@@ -10,7 +10,7 @@ from jobs.models import Job
 from printers.protocol import events as ev
 from printers.protocol.events import LineKind
 from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unlocked
-from printers.streaming import Stream, StreamType, lines_from_text
+from printers.streaming import Stream
 from printers.streaming import host_events as hv
 from printers.worker import spool
 from printers.worker.lease import UNREACHABLE, DatabaseAway
@@ -273,13 +273,13 @@ class Reactions:
 
     def _on_host_event(self: PrinterWorker, event: hv.HostEvent) -> None:
         match event:
-            case hv.StreamStarted(stream=stream) if _is_job(stream):
+            case hv.StreamStarted(stream=stream) if spool.is_job(stream):
                 dry = " as a dry run (GRBL check mode)" if self._dry_run() else ""
                 self.note(f"job {stream.ref} ({stream.name}) started{dry}")
-            case hv.StreamPaused(stream=stream) if _is_job(stream):
+            case hv.StreamPaused(stream=stream) if spool.is_job(stream):
                 self.hold_or_run(partial(self._save_state, stream, Job.State.PAUSED))
                 self.note(f"job {stream.ref} paused")
-            case hv.StreamResumed(stream=stream) if _is_job(stream):
+            case hv.StreamResumed(stream=stream) if spool.is_job(stream):
                 self.hold_or_run(partial(self._save_state, stream, Job.State.PRINTING))
                 self.note(f"job {stream.ref} resumed")
             case hv.StreamEnded(stream=stream):
@@ -298,7 +298,7 @@ class Reactions:
             spool.save_progress(stream, state=state)
 
     def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
-        if not _is_job(stream):
+        if not spool.is_job(stream):
             self.hold_or_run(partial(self.requests.ended, stream))
             return
         if stream.outcome == "completed" and self._dry_run() and not stream.message:
@@ -325,82 +325,7 @@ class Reactions:
             spool.finish(stream)
         self.sd.job_ended(stream, state)
 
-    # -- jobs and periodic commands ---------------------------------------------
-
-    def maybe_claim_job(self: PrinterWorker, now: float, *, read: bool = True) -> None:
-        """When idle, connected and the bed is clear, start the next queued job.
-
-        The queue is read when *read* (a notification, or the poll) or when the
-        printer's state changed since it was last found empty (a run ended).
-        """
-        if self.transport is None or self.halted or self.waitstart:
-            return
-        if self.host.current_stream is not None or self.host.script_queue:
-            return
-        if not (read or self.look_for_jobs):
-            return
-        if not self.requests.jobs_waiting():
-            self.look_for_jobs = False
-            return
-        with self.lease.held():
-            job = spool.claim_next(self.printer.pk)
-        if job is None:
-            return
-        problem = self._cannot_start(job)
-        if problem:
-            with self.lease.held():
-                spool.fail_job(job, problem)
-            self.note(f"job {job.pk} failed: {problem}")
-            return
-        self.protocol.reset_line_numbers(now)
-        self.journal.start_job()
-        if job.kind == Job.Kind.SD_PRINT:
-            stream = self.sd.print_stream(job)
-        elif job.kind == Job.Kind.SD_UPLOAD:
-            stream = self.sd.upload_stream(job)
-        else:
-            stream = spool.stream_for(job)
-        if job.kind != Job.Kind.SD_UPLOAD:
-            self.host.run_script("start")
-        self.host.submit(stream)
-        self.update_state()
-
-    def _cannot_start(self: PrinterWorker, job: Job) -> str:
-        """Why a claimed job cannot start, or ""."""
-        if job.on_sd_card and self.printer.is_grbl:
-            return "GRBL has no SD card to print from or copy to"
-        if job.kind != Job.Kind.SD_PRINT and not job.path.is_file():
-            return f"the job's file {job.file} is missing"
-        return ""
-
-    def save_progress(self: PrinterWorker) -> None:
-        stream = self.host.current_stream
-        if stream is not None and _is_job(stream):
-            with self.lease.held():
-                spool.save_progress(stream)
-
-    def poll_temperature(self: PrinterWorker, now: float) -> None:
-        """Ask M105 when the firmware does not report temperatures by itself."""
-        interval = self.printer.temperature_interval
-        if self.printer.is_grbl or self.autoreport or interval <= 0 or self.halted:
-            return
-        if now < self.next_temperature or self.host.script_queue:
-            return
-        self.next_temperature = now + interval
-        self.submit_internal("M105")
-
-    def submit_internal(self: PrinterWorker, text: str) -> None:
-        lines = lines_from_text(text)
-        self.host.submit(Stream(StreamType.SINGLE_COMMAND, lines, name=text))
-
-    def _dry_run(self: PrinterWorker) -> bool:
-        return bool(getattr(self.protocol, "check_mode", False))
-
 
 def _homes(text: str) -> bool:
     """`$H` (or `$HX`...): GRBL's homing cycle, which also clears an alarm lock."""
     return text.strip().upper().startswith("$H")
-
-
-def _is_job(stream: Stream) -> bool:
-    return stream.type.is_stream and isinstance(stream.ref, int)

@@ -112,6 +112,12 @@ def claim_next(printer_id: int) -> Job | None:
     return None
 
 
+def is_job(stream: Stream) -> bool:
+    """A stream that prints a job's file (not a script, a command or an SD print's
+    control): its progress and outcome belong to the job's row."""
+    return stream.type.is_stream and isinstance(stream.ref, int)
+
+
 def _file_here(job: Job) -> bool:
     if job.kind == Job.Kind.SD_PRINT or not hostcache.on_worker_host():
         return True

@@ -10,8 +10,8 @@ import time
 
 import pytest
 
+from jobs.commands import emergency_stop
 from jobs.models import Job
-from jobs.services import emergency_stop
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printers.worker.loop import PrinterWorker
 from tests.conftest import job_lines, wait_for

@@ -8,8 +8,8 @@ from functools import partial
 import pytest
 from django.db import OperationalError
 
+from jobs.commands import request_action, send_command
 from jobs.models import Job
-from jobs.services import request_action, send_command
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printers.sample_gcode import commands_of, segments
 from printers.worker.lease import DatabaseAway

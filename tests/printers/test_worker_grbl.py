@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from jobs.commands import send_command
 from jobs.models import Job
-from jobs.services import send_command
 from printers.models import Printer, QueuedCommand
 from printers.protocol.grbl_codes import JOG_CANCEL, jog_line
 from printers.sample_gcode import commands_of, segments

@@ -6,8 +6,8 @@ import time
 
 import pytest
 
+from jobs.commands import request_action
 from jobs.models import Job
-from jobs.services import request_action
 from printers.models import Printer, QueuedCommand, ResponseLine
 from printers.sample_gcode import segments
 from printers.worker.loop import PrinterWorker

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from jobs.commands import emergency_stop
 from jobs.models import Job
-from jobs.services import emergency_stop
 from printers.models import Printer, ResponseLine
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker
@@ -182,7 +182,7 @@ def test_firmware_that_stops_answering_fails_the_job_with_a_clear_message(
 def test_grbl_emergency_stop_is_feed_hold_and_soft_reset(
     sim_factory, make_printer, make_job
 ):
-    from jobs.services import send_command
+    from jobs.commands import send_command
     from printers.models import QueuedCommand
 
     sim = sim_factory("grbl", "--baud", "115200", "--time-scale", "1")

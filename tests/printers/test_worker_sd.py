@@ -7,9 +7,10 @@ from typing import TYPE_CHECKING
 
 import pytest
 
+from jobs.commands import request_action, send_command
 from jobs.models import Job
 from jobs.sdcard import delete_sd_file, queue_sd_print, queue_sd_upload
-from jobs.services import enqueue_job, request_action, send_command
+from jobs.services import enqueue_job
 from printers.models import Printer, QueuedCommand
 from printers.sample_gcode import commands_of, segments
 from printers.worker.loop import PrinterWorker

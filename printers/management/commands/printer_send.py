@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 from django.core.management.base import BaseCommand, CommandError
 
-from jobs.services import request_action, send_command
+from jobs.commands import request_action, send_command
 from printers.models import Printer, QueuedCommand
 
 if TYPE_CHECKING:
