@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 from printers.simulator import _control
+from printers.simulator._port_events import PortEvents
 from printers.simulator._ports import ControlServer, PtyPort, SetupError, TcpPort
 from printers.simulator._record import Recorder
 from printers.simulator.link import Wire
@@ -65,7 +66,7 @@ class RunnerConfig:
     control: Path | None = None
 
 
-class Simulator:
+class Simulator(PortEvents):
     """One firmware behind a pty and/or TCP port, with faults, record and control socket."""
 
     def __init__(
@@ -253,139 +254,6 @@ class Simulator:
         reopen = self.faults.config.reopen_after
         if reopen is not None:
             self._reopen_at = now + reopen
-
-    # -- ports -----------------------------------------------------------------------
-
-    def _open_ports(self) -> list[tuple[object, PtyPort | TcpPort]]:
-        """(file object, port) of every port a host can talk through right now."""
-        ports: list[tuple[object, PtyPort | TcpPort]] = []
-        if self.pty is not None and self.pty.master is not None:
-            ports.append((self.pty.master, self.pty))
-        if self.tcp is not None and self.tcp.client is not None:
-            ports.append((self.tcp.client, self.tcp))
-        return ports
-
-    def _read_ports(self, since: float) -> None:
-        """Read what the hosts wrote while we were not listening (see `run`).
-
-        We stop listening while the inbound wire is busy: bytes written then
-        queue behind it anyway, so reading them a little later changes nothing,
-        and a streaming host costs one wake-up per line instead of three.
-        """
-        for _, port in self._open_ports():
-            self._read_port(port, since)
-
-    def _read_port(self, port: PtyPort | TcpPort, now: float) -> None:
-        data = port.read()
-        if data is None:  # the TCP client hung up
-            self._drop_tcp_client()
-        elif data:
-            share = self.faults.config.noise_to_firmware
-            data = self.faults.garble(data, share, one_per_line=True)
-            self.to_firmware.put(data, now)
-        if isinstance(port, TcpPort) and port.take_dtr_reset():  # RFC 2217 DTR pulse
-            self.to_firmware.clear()
-            self.firmware.reset(now)
-
-    def _update_interest(self) -> None:
-        """Read only while listening; ask for EVENT_WRITE only while output waits."""
-        for fileobj, port in self._open_ports():
-            mask = selectors.EVENT_READ if self._listening else 0
-            if port.pending:
-                mask |= selectors.EVENT_WRITE
-            self._set_interest(fileobj, mask, port)
-
-    def _set_interest(
-        self, fileobj: object, mask: int, port: PtyPort | TcpPort
-    ) -> None:
-        current = self._masks.get(fileobj, 0)
-        if mask == current:
-            return
-        if not mask:
-            self.selector.unregister(fileobj)
-            del self._masks[fileobj]
-            return
-        if current:
-            self.selector.modify(fileobj, mask, self._port_callback(port))
-        else:
-            self.selector.register(fileobj, mask, self._port_callback(port))
-        self._masks[fileobj] = mask
-
-    def _forget(self, fileobj: object) -> None:
-        if self._masks.pop(fileobj, 0):
-            self.selector.unregister(fileobj)
-
-    def _port_callback(self, port: PtyPort | TcpPort) -> object:
-        def on_event(mask: int) -> None:
-            if mask & selectors.EVENT_WRITE:
-                port.flush()
-            if mask & selectors.EVENT_READ:
-                self._read_port(port, time.monotonic())
-
-        return on_event
-
-    def _on_accept(self, mask: int) -> None:
-        tcp = self.tcp
-        assert tcp is not None
-        old = tcp.client
-        if old is not None:
-            self._forget(old)
-        tcp.accept()
-
-    def _drop_tcp_client(self) -> None:
-        tcp = self.tcp
-        if tcp is not None and tcp.client is not None:
-            self._forget(tcp.client)
-            tcp.drop_client()
-
-    def close_ports(self) -> None:
-        """The device went away: the link disappears and the TCP client is dropped."""
-        if self.pty is not None and self.pty.master is not None:
-            self._forget(self.pty.master)
-            self.pty.close()
-        if self.tcp is not None:
-            self._drop_tcp_client()
-            self.tcp.accepting = False
-        self.closed = True
-        self.to_firmware.clear()
-        self.to_host.clear()
-
-    def reopen_ports(self, now: float) -> None:
-        """The device is back (powered up again): fresh pty, firmware reset."""
-        self._reopen_at = None
-        if not self.closed:
-            return
-        if self.pty is not None:
-            self.pty.open()
-        if self.tcp is not None:
-            self.tcp.accepting = True
-        self.closed = False
-        self.firmware.reset(now)
-        self._boot_output()
-
-    # -- the control socket ----------------------------------------------------------
-
-    def _on_control_accept(self, mask: int) -> None:
-        client = self.control.accept()  # type: ignore[union-attr]
-        if client is not None:
-            self.selector.register(
-                client, selectors.EVENT_READ, self._control_reader(client)
-            )
-
-    def _control_reader(self, client: socket.socket) -> object:
-        def on_readable(mask: int) -> None:
-            control = self.control
-            assert control is not None
-            lines = control.read_lines(client)
-            if lines is None:
-                self.selector.unregister(client)
-                control.drop(client)
-                return
-            for line in lines:
-                if line:
-                    control.answer(client, self.handle_control(line))
-
-        return on_readable
 
     def handle_control(self, line: str) -> str:
         """Run one control command; returns `ok ...` or `error: ...`."""
