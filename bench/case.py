@@ -139,12 +139,15 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
     sent = _count_writes(worker)
     started = cpu0 = None
     deadline = None
+    turns = 0
     while True:
         worker.tick()
+        turns += 1
         stream = worker.host.current_stream
         if started is None and stream is not None and stream.sent:
             started, cpu0, sent[0] = time.perf_counter(), time.process_time(), 0
             deadline = started + case["max_seconds"]
+            turns = 0
         if started is not None and (stream is None or time.perf_counter() > deadline):
             break
     seconds = time.perf_counter() - started
@@ -153,7 +156,7 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
         stream.acked if stream is not None else Job.objects.get(pk=job.pk).lines_acked
     )
     worker.stop()
-    return report(case, acked, sent[0], seconds, cpu)
+    return report(case, acked, sent[0], seconds, cpu, wakes=turns)
 
 
 def measure_reference(case: dict, sim: object, data_dir: Path, text: str) -> dict:
@@ -165,7 +168,10 @@ def measure_reference(case: dict, sim: object, data_dir: Path, text: str) -> dic
         sim.link, commands_of(text), firmware=case["firmware"], mode=case["mode"],
         baud=case["baud"], max_seconds=case["max_seconds"],
     )  # fmt: skip
-    return report(case, done["lines"], done["bytes"], done["seconds"], done["cpu"])
+    return report(
+        case, done["lines"], done["bytes"], done["seconds"], done["cpu"],
+        wakes=done["wakes"],
+    )  # fmt: skip
 
 
 def _count_writes(worker: object) -> list[int]:
@@ -183,7 +189,9 @@ def _count_writes(worker: object) -> list[int]:
     return count
 
 
-def report(case: dict, lines: int, sent: int, seconds: float, cpu: float) -> dict:
+def report(case: dict, lines: int, sent: int, seconds: float, cpu: float, *,
+           wakes: int) -> dict:  # fmt: skip
+    """One case's figures; *wakes*: turns of the host's loop (each one wake-up)."""
     rate = sent / seconds if seconds else 0.0
     link = case["baud"] / 10 if case["baud"] else 0.0
     return {
@@ -195,6 +203,7 @@ def report(case: dict, lines: int, sent: int, seconds: float, cpu: float) -> dic
         "link_use": round(rate / link, 3) if link else None,
         "cpu_s_per_1k_lines": round(cpu / lines * 1000, 4) if lines else None,
         "mean_line_bytes": round(sent / lines, 1) if lines else None,
+        "wakes_per_line": round(wakes / lines, 3) if lines else None,
     }
 
 

@@ -188,9 +188,17 @@ def reference_lines(results: list[dict]) -> list[str]:
         lines.append(
             f"INFO {mine['name']}: cpu/1k {mine['cpu_s_per_1k_lines']:.3f}, "
             f"{ratio:.1f} x the reference host's {r['cpu_s_per_1k_lines']:.3f} "
-            f"(least of {_runs(mine)} against {_runs(r)})"
+            f"(least of {_runs(mine)} against {_runs(r)}; wake-ups a line "
+            f"{_wakes(mine)} against {_wakes(r)})"
         )
     return lines
+
+
+def _wakes(result: dict) -> str:
+    """Turns of the host's loop a line: with long lines, two fit the firmware's
+    127-byte buffer, so any host wakes once a line to keep the wire busy."""
+    wakes = result.get("wakes_per_line")
+    return f"{wakes:.2f}" if wakes is not None else "?"
 
 
 def _runs(result: dict) -> str:
