@@ -42,7 +42,7 @@ sim: install
 	$(BIN)/python -m printers.simulator marlin --link ./printer0 --baud 250000
 
 bench: install
-	$(BIN)/python -m bench.streaming && $(BIN)/python -m bench.analysis && $(BIN)/python -m bench.eta && $(BIN)/python -m bench.farm
+	$(BIN)/python -m bench.streaming && $(BIN)/python -m bench.loop_cost && $(BIN)/python -m bench.analysis && $(BIN)/python -m bench.eta && $(BIN)/python -m bench.farm
 
 clean:
 	rm -rf $(VENV) var .pytest_cache .ruff_cache .hypothesis bench-results.json bench-soak.json bench-analysis.json bench-eta.json bench-farm.json
