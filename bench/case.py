@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+#: Printer.flow for each Marlin mode of the bench (GRBL's character counting: auto).
+FLOWS = {"ping_pong": "ping_pong", "advanced_ok": "auto", "bytes": "buffered"}
 
 
 def main() -> int:
@@ -124,10 +126,9 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
     grbl = case["firmware"] == "grbl"
     source = data_dir / "bench.gcode"
     source.write_text(text)
-    flow = {"ping_pong": "ping_pong", "advanced_ok": "auto", "bytes": "buffered"}
     printer = Printer.objects.create(
         name="bench", slug="bench", port=str(sim.link), baud=case["baud"] or 115200,
-        firmware=case["firmware"], flow=flow.get(case["mode"], "auto"),
+        firmware=case["firmware"], flow=FLOWS.get(case["mode"], "auto"),
         temperature_interval=0, status_interval=0.2 if grbl else 0,
     )  # fmt: skip
     job = enqueue_job(printer, source)

@@ -29,10 +29,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.case import FLOWS
+
 ROOT = Path(__file__).resolve().parent.parent
 #: A long line's time on the wire at 250000 baud (55 bytes): the clock's step a turn.
 TURN_SECONDS = 0.0022
-FLOWS = {"ping_pong": "ping_pong", "advanced_ok": "auto", "bytes": "buffered"}
 _NUMBER = re.compile(rb"N(\d+) ")
 
 

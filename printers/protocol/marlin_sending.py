@@ -152,15 +152,10 @@ class Sending:
         return self._max_b + 1 if self._advanced else self._bufsize
 
     def _pump(self: MarlinProtocol) -> None:
-        window = self._window
-        # Nothing queued, re-sent or left over from a rewind (a stream's lines go
-        # live in offer()): the pump would find nothing to move. Twice a line.
-        if (
-            window.queued
-            or window.rewind_next < window.rewind_end
-            or window.rewind_tags
-        ):
-            window.pump(self._max_lines())
+        # Asked twice a line; a stream's lines go live in offer(), so the window
+        # mostly has nothing to move, and the flow limit is not worked out then.
+        if self._window.has_lines_to_move:
+            self._window.pump(self._max_lines())
 
 
 def _validate(text: str) -> str:

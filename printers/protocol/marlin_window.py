@@ -240,6 +240,14 @@ class LineWindow:
 
     # -- moving lines ----------------------------------------------------------------
 
+    @property
+    def has_lines_to_move(self) -> bool:
+        """Whether `pump` has anything to do: lines queued or to re-send, or the
+        tags of a finished re-send to forget."""
+        return bool(
+            self.queued or self.rewind_next < self.rewind_end or self.rewind_tags
+        )
+
     def pump(self, max_lines: int) -> None:
         """Move lines to re-send, then queued lines, to the wire while W2 allows."""
         while (line := self._peek()) is not None and self.room_for(line, max_lines):

@@ -267,7 +267,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
     def journal_progress(self) -> None:
         """Append the job's acknowledged line to the journal (every tick that moved it)."""
         stream = self.host.current_stream
-        if stream is not None and isinstance(stream.ref, int) and stream.type.is_stream:
+        if stream is not None and spool.is_job(stream):
             self.journal.progress(
                 stream.ref, stream.done, stream.reached, stream.bytes_acked
             )
