@@ -297,6 +297,15 @@ def test_offer_leaves_out_a_line_the_window_has_no_room_for() -> None:
     assert proto.in_flight == 0
 
 
+def test_offer_takes_a_line_that_fills_the_rx_buffer_to_the_last_byte() -> None:
+    proto = MarlinProtocol(checksums="never", flow="buffered", rx_buffer=127)
+    long = "G1 X100.000 Y100.000 Z0.300 E12.34567 F1800"  # 43 + 1 bytes
+    assert proto.offer(long, 0.0) and proto.offer(long, 0.0)
+    assert not proto.offer("M117 " + "x" * 34, 0.0)  # 88 + 40 bytes: one over
+    assert proto.offer("M117 " + "x" * 33, 0.0)  # 88 + 39: 127 to the byte
+    assert proto.bytes_in_flight == 127
+
+
 def test_forced_ping_pong_ignores_advanced_ok() -> None:
     proto = MarlinProtocol(checksums="always", flow="ping_pong")
     log = run(proto, TinyMarlin(advanced=True), JOB[:5])

@@ -207,9 +207,18 @@ class Outcome:
 
 
 def run_job(
-    job: list[str], proto: MarlinProtocol, peer: SimMarlin, wire: Wire
+    job: list[str],
+    proto: MarlinProtocol,
+    peer: SimMarlin,
+    wire: Wire,
+    *,
+    offer: bool = False,
 ) -> Outcome:
-    """Stream *job* through *wire* to *peer*, jumping the clock from event to event."""
+    """Stream *job* through *wire* to *peer*, jumping the clock from event to event.
+
+    *offer*: each line goes as the stream host sends it, `offer` (asked again until
+    it is taken), which must take it exactly when `can_send` says it may go.
+    """
     outcome = Outcome()
     now, next_line = 0.0, 0
     for _ in range(50_000):
@@ -221,8 +230,14 @@ def run_job(
                 outcome.failures.append(event.message)
         if outcome.failures:
             return outcome
-        while next_line < len(job) and proto.can_send(job[next_line]):
-            proto.send(job[next_line], now, tag=next_line)
+        while next_line < len(job):
+            fits = proto.can_send(job[next_line])
+            if offer:
+                assert proto.offer(job[next_line], now, tag=next_line) == fits
+            elif fits:
+                proto.send(job[next_line], now, tag=next_line)
+            if not fits:
+                break
             next_line += 1
             outcome.max_bytes = max(outcome.max_bytes, proto.bytes_in_flight)
         if data := proto.data_to_send():
@@ -299,6 +314,28 @@ def test_every_line_runs_once_in_order_over_a_bad_link(
     assert outcome.acks == list(range(len(job)))  # every tag once, in order
     assert outcome.max_bytes <= 127  # the protocol's own accounting
     assert peer.overflows == 0  # and the firmware's ring agrees
+
+
+#: Lines of any length a window takes, to meet the byte budget's edge.
+messages = st.lists(
+    st.text("abcxyz0123456789", min_size=1, max_size=70).map("M117 {}".format),
+    min_size=1,
+    max_size=40,
+)
+
+
+@PROPERTY
+@given(job=st.one_of(moves, messages), setup=setups())
+def test_offer_takes_a_line_exactly_when_can_send_says_it_may_go(
+    job: list[str], setup: tuple[MarlinProtocol, SimMarlin, Wire]
+) -> None:
+    proto, peer, wire = setup
+    outcome = run_job(job, proto, peer, wire, offer=True)
+    assert outcome.failures == []
+    assert peer.executed == job
+    assert outcome.acks == list(range(len(job)))
+    assert outcome.max_bytes <= 127
+    assert peer.overflows == 0
 
 
 @PROPERTY
