@@ -13,9 +13,12 @@ a turn, so the database turns come as often per line as on the wire.
 
 Only the turns are timed (thread CPU time), in alternation: *warm*, nothing else
 between turns; *cold*, EVICT_KB of memory written between turns (more than the
-core's L2 cache), as the other processes do. The cold figure is close to
-bench.streaming's; the gap between the two is what the loop pays for the memory it
-touches a turn (code and objects), not for its instructions.
+core's L2 cache), as the other processes do; *idle*, the thread asleep for a long
+line's wire time between turns, as the worker is on the wire (its core idle, or
+lent to other work, until the next `ok`). The gap between warm and the other two
+is what the loop pays for the memory it touches a turn (code and objects), not for
+its instructions; which of cold and idle comes closer to bench.streaming's figure
+differs from day to day on a shared machine.
 """
 
 from __future__ import annotations
@@ -72,8 +75,11 @@ class InstantFirmware:
         return "no DTR line"
 
 
-def run(mode: str, lines: int, evict_kb: int, slug: str) -> float:
-    """CPU seconds per 1,000 lines of the loop's turns (*evict_kb* > 0: cold)."""
+def run(
+    mode: str, lines: int, evict_kb: int, slug: str, *, idle: bool = False
+) -> float:
+    """CPU seconds per 1,000 lines of the loop's turns (*evict_kb* > 0: cold;
+    *idle*: asleep for TURN_SECONDS between turns)."""
     from jobs.services import enqueue_job
     from printers.models import Printer
     from printers.sample_gcode import long_lines
@@ -109,6 +115,8 @@ def run(mode: str, lines: int, evict_kb: int, slug: str) -> float:
                 return spent / (stream.acked - first) * 1000
             if evict_kb:
                 junk[::64] = zeros
+            if idle:
+                time.sleep(TURN_SECONDS)  # the wire's time: no event to wait for
             clock[0] += TURN_SECONDS
             started = time.thread_time()
             worker.tick()
@@ -136,22 +144,27 @@ def main(argv: list[str] | None = None) -> int:
     from django.core.management import call_command
 
     call_command("migrate", verbosity=0)
-    figures: dict[str, list[float]] = {"warm": [], "cold": []}
+    figures: dict[str, list[float]] = {"warm": [], "cold": [], "idle": []}
     for index in range(options.runs):
-        for kind, evict in (("warm", 0), ("cold", options.evict_kb)):
+        for kind in figures:
+            evict = options.evict_kb if kind == "cold" else 0
             slug = f"{kind}-{index}"
-            figures[kind].append(run(options.mode, options.lines, evict, slug))
+            figures[kind].append(
+                run(options.mode, options.lines, evict, slug, idle=kind == "idle")
+            )
     print(_report(options, figures))
     return 0
 
 
 def _report(options: Any, figures: dict[str, list[float]]) -> str:
-    warm, cold = min(figures["warm"]), min(figures["cold"])
+    warm, cold, idle = (min(figures[kind]) for kind in ("warm", "cold", "idle"))
     runs = {k: ", ".join(f"{v:.3f}" for v in vs) for k, vs in figures.items()}
     return (
         f"loop cost, Marlin {options.mode}, one line a turn: cpu/1k warm {warm:.3f} "
         f"({runs['warm']}), cold with {options.evict_kb} KB written between turns "
-        f"{cold:.3f} ({runs['cold']}): {cold / warm:.1f} x"
+        f"{cold:.3f} ({runs['cold']}): {cold / warm:.1f} x, idle "
+        f"{TURN_SECONDS * 1000:.1f} ms between turns {idle:.3f} ({runs['idle']}): "
+        f"{idle / warm:.1f} x"
     )
 
 
