@@ -339,6 +339,9 @@ FINISHED_STATES = frozenset(
 )
 #: States in which a worker owns the job; after a crash they become INTERRUPTED.
 ACTIVE_STATES = frozenset({Job.State.PRINTING, Job.State.PAUSED})
+#: The jobs whose files a worker host fetches, and may read from the control
+#: plane: the ones it will print or is printing (printers/fetcher.py).
+HOST_FILE_STATES = frozenset({Job.State.QUEUED, *ACTIVE_STATES})
 #: A printer's active jobs in this order: the first is its running job.
 RUNNING_ORDER = ("started_at", "pk")
 

@@ -7,18 +7,26 @@ them in queue order over HTTP(S) from `PRINTHOST_CONTROL_URL/host/files/<job>` w
 the host's key (`PRINTHOST_HOST_KEY`):
 
 1. the body is streamed to `<sha256>.part` in the cache, never held in memory; a
-   cut download continues from the part's size (`Range`);
+   cut download continues from the part's size (`Range`). The part is locked
+   while it is written (a second fetcher on the host leaves it alone), never
+   grows past the job's size, and one download takes at most TIMEOUT plus the
+   size at SLOWEST_RATE (a slower one stops and continues on a later pass);
 2. the part's SHA-256 must equal the job's, or it is deleted and fetched again;
 3. it is renamed to `<sha256>` (atomic), where the worker finds it
    (`jobs.hostcache.verified`, which checks the SHA-256 again before printing).
 
-The cache keeps at most `PRINTHOST_FILE_CACHE_BYTES`; the least recently used
-files go first, never a file a queued or running job of this host names. A job
-waiting for its file says so in its message.
+The host's key goes to the control plane's address only: a redirect is refused
+(it would carry the key elsewhere). The cache keeps at most
+`PRINTHOST_FILE_CACHE_BYTES`, parts included; the least recently used files go
+first, never a file a queued or running job of this host names, and a part no
+such job names is deleted. A job waiting for its file says so in its message.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import http.client
 import json
 import logging
 import time
@@ -30,25 +38,29 @@ from typing import TYPE_CHECKING
 from django.db import DatabaseError
 
 from jobs import hostcache
-from jobs.models import ACTIVE_STATES, Job
+from jobs.models import HOST_FILE_STATES, Job
 from printhost.longrunning import close_failed_connections
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+    from email.message import Message
     from pathlib import Path
+    from typing import IO, BinaryIO
 
 logger = logging.getLogger("printhost.fetcher")
 
 CHUNK = 256 * 1024
 #: Seconds to wait for the control plane's answer or its next bytes.
 TIMEOUT = 30.0
+#: One download may take TIMEOUT plus its size at this rate (bytes/s); a slower
+#: one stops (the part stays) and goes on at a later pass, so one slow file does
+#: not hold back the others.
+SLOWEST_RATE = 50_000
 #: Delay after a failed download of one file, doubling up to the cap (s).
 RETRY_FIRST = 1.0
 RETRY_CAP = 60.0
 #: The job's message is updated at most this often while its file arrives (s).
 MESSAGE_SECONDS = 2.0
-
-_WANTED_STATES = (Job.State.QUEUED, *ACTIVE_STATES)
 
 
 class FetchFailed(Exception):
@@ -96,7 +108,7 @@ class Fetcher:
         """This host's jobs that print a stored file, in queue order."""
         rows = (
             Job.objects.filter(
-                printer__worker_host__name=self.host, state__in=_WANTED_STATES
+                printer__worker_host__name=self.host, state__in=HOST_FILE_STATES
             )
             .exclude(kind=Job.Kind.SD_PRINT)
             .exclude(file="")
@@ -136,60 +148,83 @@ class Fetcher:
 
     def fetch(self, item: Wanted) -> Path:
         """Download one job's file into the cache, checked; FetchFailed says why."""
-        self.cache.mkdir(parents=True, exist_ok=True)
         part = self.cache / f"{item.sha256}.part"
-        have = part.stat().st_size if part.exists() else 0
-        request = urllib.request.Request(
-            f"{self.control_url}/host/files/{item.job_id}",
-            headers={"Authorization": f"Bearer {self.key}"},
-        )
+        target = self.cache / item.sha256
+        try:
+            self.cache.mkdir(parents=True, exist_ok=True)
+            with part.open("ab") as out:
+                _lock(out)  # held to the rename: no other fetcher writes it meanwhile
+                if not item.size or out.tell() < item.size:
+                    self._download(item, out)
+                digest = hostcache.sha256_of(part)
+                if digest != item.sha256:
+                    part.unlink(missing_ok=True)
+                    raise FetchFailed(
+                        f"the download's SHA-256 is {digest[:12]}…, not the job's "
+                        f"{item.sha256[:12]}…; fetching it again"
+                    )
+                part.replace(target)
+        except OSError as error:
+            raise FetchFailed(f"cannot write the cache: {error}") from None
+        self.fetched += 1
+        logger.info("host %s: job %s's file arrived", self.host, item.job_id)
+        self._say(item.job_id, "")
+        return target
+
+    def _download(self, item: Wanted, out: BinaryIO) -> None:
+        """Append the rest of the file to *out* (the part, open and locked)."""
+        have = out.tell()
+        request = urllib.request.Request(f"{self.control_url}/host/files/{item.job_id}")
+        # Unredirected: should a redirect get past _OPENER, the key stays here.
+        request.add_unredirected_header("Authorization", f"Bearer {self.key}")
         if have:
             request.add_header("Range", f"bytes={have}-")
         try:
-            with urllib.request.urlopen(request, timeout=TIMEOUT) as response:
+            with _OPENER.open(request, timeout=TIMEOUT) as response:
                 if response.status != 206:
-                    have = 0  # the whole file came back: start the part again
+                    _restart(out)  # the whole file came back: start the part again
                 announced = response.headers.get("X-Printhost-Sha256", "")
                 if announced and announced != item.sha256:
                     raise FetchFailed(
                         f"the control plane's file has SHA-256 {announced[:12]}…, "
                         f"the job names {item.sha256[:12]}…"
                     )
-                self._copy(response, part, append=bool(have), item=item, have=have)
+                self._copy(response, out, item=item)
         except urllib.error.HTTPError as error:
+            if error.code == 416:  # the part is longer than the file: start again
+                _restart(out)
             raise FetchFailed(f"the control plane answered {error.code}: "
                               f"{_error_text(error)}") from None  # fmt: skip
-        except (urllib.error.URLError, OSError, TimeoutError) as error:
+        except (OSError, http.client.HTTPException) as error:  # URLError included
             raise FetchFailed(f"cannot reach the control plane: {error}") from None
-        digest = hostcache.sha256_of(part)
-        if digest != item.sha256:
-            part.unlink(missing_ok=True)
-            raise FetchFailed(
-                f"the download's SHA-256 is {digest[:12]}…, not the job's "
-                f"{item.sha256[:12]}…; fetching it again"
-            )
-        target = self.cache / item.sha256
-        part.replace(target)
-        self.fetched += 1
-        logger.info("host %s: job %s's file arrived", self.host, item.job_id)
-        self._say(item.job_id, "")
-        return target
 
-    def _copy(
-        self, response: object, part: Path, *, append: bool, item: Wanted, have: int
-    ) -> None:
-        done = have
-        with part.open("ab" if append else "wb") as out:
-            while chunk := response.read(CHUNK):  # type: ignore[attr-defined]
-                out.write(chunk)
-                done += len(chunk)
-                if self.clock() >= self._message_at and item.size:
-                    self._message_at = self.clock() + MESSAGE_SECONDS
-                    share = min(100, round(100 * done / item.size))
-                    self._say(
-                        item.job_id,
-                        f"its file is on its way to worker host {self.host}: {share} %",
-                    )
+    def _copy(self, response: BinaryIO, out: BinaryIO, *, item: Wanted) -> None:
+        started = self.clock()
+        deadline = started + TIMEOUT + item.size / SLOWEST_RATE
+        done = out.tell()
+        while chunk := _read(response):
+            if item.size and done + len(chunk) > item.size:
+                _restart(out)
+                raise FetchFailed(
+                    f"the control plane sent more than the job's {item.size} bytes; "
+                    "fetching it again"
+                )
+            _write(out, chunk)
+            done += len(chunk)
+            now = self.clock()
+            if now >= deadline and done < item.size:
+                raise FetchFailed(
+                    f"the download is slower than {SLOWEST_RATE // 1000} kB/s "
+                    f"({done} of {item.size} bytes after {now - started:.0f} s); "
+                    "it goes on from there at the next try"
+                )
+            if now >= self._message_at and item.size:
+                self._message_at = now + MESSAGE_SECONDS
+                share = min(100, round(100 * done / item.size))
+                self._say(
+                    item.job_id,
+                    f"its file is on its way to worker host {self.host}: {share} %",
+                )
 
     def _failed(self, item: Wanted, reason: str) -> None:
         _, delay = self.retry.get(item.sha256, (0.0, RETRY_FIRST / 2))
@@ -215,17 +250,30 @@ class Fetcher:
         """Remove least recently used files until the cache fits its cap.
 
         Files in *keep* (named by this host's queued and running jobs) stay even
-        if the cap is exceeded; so do parts being written. Returns what went.
+        if the cap is exceeded, and so do their parts (downloads under way or
+        cut short); a part no such job names goes. Returns what went.
         """
         if not self.cache.is_dir():
             return []
-        files = [
-            (path.stat().st_mtime, path.stat().st_size, path)
-            for path in self.cache.iterdir()
-            if path.is_file() and hostcache.valid_sha256(path.name)
-        ]
-        total = sum(size for _, size, _ in files)
+        files, parts = [], []
+        for path in self.cache.iterdir():
+            name = path.name
+            sha, is_part = name.removesuffix(".part"), name.endswith(".part")
+            if not hostcache.valid_sha256(sha):
+                continue
+            with contextlib.suppress(FileNotFoundError):  # gone meanwhile
+                stat = path.stat()
+                if is_part:
+                    parts.append((stat.st_size, path, sha))
+                else:
+                    files.append((stat.st_mtime, stat.st_size, path))
         removed: list[str] = []
+        total = sum(size for _, size, _ in files)
+        for size, path, sha in parts:
+            if sha in keep:
+                total += size
+            elif _unlink_unlocked(path):
+                removed.append(path.name)
         for _, size, path in sorted(files):
             if total <= self.cap_bytes:
                 break
@@ -250,6 +298,74 @@ class Fetcher:
             wait = interval - (self.clock() - began)
             if wait > 0:
                 time.sleep(wait)
+
+
+class _RefuseRedirects(urllib.request.HTTPRedirectHandler):
+    """A redirect would take the host's key to another address: refused."""
+
+    def redirect_request(
+        self,
+        req: urllib.request.Request,
+        fp: IO[bytes],
+        code: int,
+        msg: str,
+        headers: Message,
+        newurl: str,
+    ) -> urllib.request.Request | None:
+        fp.close()
+        raise FetchFailed(
+            f"the control plane redirected the download to {newurl} ({code}); "
+            "set PRINTHOST_CONTROL_URL to the address that serves it"
+        )
+
+
+_OPENER = urllib.request.build_opener(_RefuseRedirects)
+
+
+def _restart(out: BinaryIO) -> None:
+    """Empty the part: what comes next is the file from its start."""
+    try:
+        out.seek(0)
+        out.truncate()
+    except OSError as error:
+        raise FetchFailed(f"cannot write the cache: {error}") from None
+
+
+def _write(out: BinaryIO, chunk: bytes) -> None:
+    """Append *chunk* to the part (a full disk is the cache's error, not the
+    network's)."""
+    try:
+        out.write(chunk)
+        out.flush()
+    except OSError as error:
+        raise FetchFailed(f"cannot write the cache: {error}") from None
+
+
+def _read(response: BinaryIO) -> bytes:
+    """The next chunk of the body (a network error, not the cache's)."""
+    try:
+        return response.read(CHUNK)
+    except (OSError, http.client.HTTPException) as error:
+        raise FetchFailed(f"the download was cut: {error}") from None
+
+
+def _lock(out: BinaryIO) -> None:
+    """Take the part for this fetcher; FetchFailed when another one writes it."""
+    try:
+        fcntl.flock(out.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise FetchFailed("another fetcher on this host is writing it") from None
+
+
+def _unlink_unlocked(path: Path) -> bool:
+    """Delete a part no fetcher is writing; whether it went."""
+    try:
+        with path.open("rb") as part:
+            fcntl.flock(part.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            path.unlink()
+    except (BlockingIOError, FileNotFoundError):
+        return False
+    return True
 
 
 def _error_text(error: urllib.error.HTTPError) -> str:

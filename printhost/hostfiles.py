@@ -19,7 +19,7 @@ from django.conf import settings
 from django.http import FileResponse, HttpRequest, HttpResponse, JsonResponse
 from django.views.decorators.http import require_GET
 
-from jobs.models import Job
+from jobs.models import HOST_FILE_STATES, Job
 from jobs.paths import PathRefused, inside
 from printers.hosts import KEY_PREFIX_CHARS, WorkerHost
 
@@ -53,8 +53,13 @@ def job_file(request: HttpRequest, job_id: int) -> HttpResponse:
         return _refuse(401, "a worker host's key is required (Authorization: Bearer)")
     if not host.enabled:
         return _refuse(403, f"worker host {host.name} is disabled")
+    # Only jobs the host will print or is printing (the fetcher asks for no
+    # other): not the files of jobs that ended, some perhaps printed while the
+    # printer belonged to another host.
     job = (
-        Job.objects.filter(pk=job_id, printer__worker_host=host)
+        Job.objects.filter(
+            pk=job_id, printer__worker_host=host, state__in=HOST_FILE_STATES
+        )
         .exclude(file="")
         .first()
     )

@@ -118,3 +118,22 @@ def test_only_get_is_answered(client, shelf, make_printer, make_job):
     job = make_job(make_printer(worker_host=host), GCODE)
     response = client.post(f"/host/files/{job.pk}", HTTP_AUTHORIZATION=f"Bearer {key}")
     assert response.status_code == 405
+
+
+@pytest.mark.parametrize(
+    "state", ["stored", "completed", "aborted", "failed", "interrupted"]
+)
+def test_a_job_that_ended_is_not_served_even_to_its_printers_host(
+    client, shelf, make_printer, make_job, state
+):
+    """The host prints it no more: an ended job's file (perhaps printed while the
+    printer was another host's) is not the host's to read."""
+    from jobs.models import Job
+
+    host, key = shelf
+    job = make_job(make_printer(worker_host=host), GCODE)
+    assert _get(client, job.pk, key).status_code == 200
+    Job.objects.filter(pk=job.pk).update(state=state)
+    response = _get(client, job.pk, key)
+    assert response.status_code == 404
+    assert f"prints no job {job.pk}" in response.json()["error"]
