@@ -31,6 +31,9 @@ if TYPE_CHECKING:
     from printers.models import Printer
 
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._ -]+")
+#: The longest stored file name (a file system takes 255 bytes; stored names get
+#: a unique prefix or suffix, farm copies `farm<id>-` too).
+MAX_NAME = 180
 
 
 def storage_dir(printer: Printer) -> Path:
@@ -46,10 +49,18 @@ def stored_file(printer: Printer, name: str) -> Path:
 
 
 def safe_name(name: str) -> str:
-    """A file name that cannot climb out of the storage folder."""
+    """A file name that cannot climb out of the storage folder, nor make a path
+    the file system refuses: at most MAX_NAME characters (its extension kept),
+    which leaves room for the prefixes that make stored names unique."""
     cleaned = _SAFE_NAME.sub("_", Path(name).name).strip(" .")
     if not cleaned:
         raise BadGcode(f"{name!r} is not a usable file name")
+    if len(cleaned) > MAX_NAME:
+        stem, dot, extension = cleaned.rpartition(".")
+        if not dot or len(extension) > 16:
+            stem, dot, extension = cleaned, "", ""
+        keep = MAX_NAME - len(extension) - len(dot)
+        cleaned = stem[:keep].rstrip(" .") + dot + extension
     return cleaned
 
 

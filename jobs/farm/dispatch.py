@@ -46,8 +46,9 @@ from jobs.farm.matching import (
 from jobs.farm.models import FarmJob
 from jobs.farm.requirements import unmet
 from jobs.farm.storing import remove_file, request_farm_analysis
-from jobs.gcode import FileFacts
+from jobs.gcode import BadGcode, FileFacts
 from jobs.models import Job
+from jobs.paths import PathRefused
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -237,9 +238,15 @@ class Dispatcher:
                 if decision.printer is None:
                     break
                 taken.add(decision.printer.slug)
-                outcome = claim(
-                    farm_job.pk, decision.printer.extra["pk"], hook=self.hook
-                )
+                try:
+                    outcome = claim(
+                        farm_job.pk, decision.printer.extra["pk"], hook=self.hook
+                    )
+                except (OSError, BadGcode, PathRefused) as error:
+                    # This job's file, not the farm: the jobs behind it go on.
+                    reason = f"could not be given to {decision.printer.slug}: {error}"
+                    logger.warning("farm job %s %s", farm_job.pk, reason)
+                    break
                 if outcome.job is not None:
                     given += 1
                     reason = ""

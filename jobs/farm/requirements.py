@@ -148,9 +148,9 @@ def parse_nozzle(value: object) -> float | None:
         raise BadRequirement(f"nozzle must be a diameter in mm, not {value!r}")
     try:
         number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a huge integer
         raise BadRequirement(
-            f"nozzle must be a diameter in mm (e.g. 0.4), not {value!r}"
+            f"nozzle must be a diameter in mm (e.g. 0.4), not {str(value)[:40]!r}"
         ) from None
     if not math.isfinite(number) or not 0.05 <= number <= 5:
         raise BadRequirement(f"nozzle must be between 0.05 and 5 mm, not {value!r}")
@@ -165,20 +165,24 @@ def parse_tags(value: object) -> tuple[str, ...]:
     if isinstance(value, str):
         items = value.split(",")
     elif isinstance(value, list | tuple):
-        items = [part for item in value for part in str(item).split(",")]
+        if not all(isinstance(item, str) for item in value):
+            raise BadRequirement(f"tags must be words, not {value!r}")
+        items = [part for item in value for part in item.split(",")]
     else:
         raise BadRequirement(f"tags must be a list or comma-separated words: {value!r}")
     tags: list[str] = []
+    seen: set[str] = set()
     for item in items:
-        tag = " ".join(str(item).split())
+        tag = " ".join(item.split())
         if not tag:
             continue
         if len(tag) > MAX_TAG or any(not c.isprintable() for c in tag):
             raise BadRequirement(f"a tag is 1 to {MAX_TAG} printable characters")
-        if _norm(tag) not in {_norm(t) for t in tags}:
+        if _norm(tag) not in seen:
+            seen.add(_norm(tag))
             tags.append(tag)
-    if len(tags) > MAX_TAGS:
-        raise BadRequirement(f"at most {MAX_TAGS} tags, not {len(tags)}")
+            if len(tags) > MAX_TAGS:
+                raise BadRequirement(f"at most {MAX_TAGS} tags")
     return tuple(tags)
 
 

@@ -44,6 +44,9 @@ logger = logging.getLogger("printhost.farm")
 FARM_FOLDER = "farm"
 #: Priorities run from -1000 to 1000; 0 is the default.
 PRIORITY_LIMIT = 1000
+#: A deadline's year (UTC) lies in this range: one PostgreSQL stores but cannot
+#: read back (before the year 1 or after 9999 in UTC) would break the queue's reads.
+DEADLINE_YEARS = (2000, 2200)
 #: What a job waiting for its analysis says.
 WAITING_FOR_ANALYSIS = "waiting for the file's analysis"
 
@@ -92,7 +95,17 @@ def parse_deadline(value: object) -> datetime | None:
         )
     if timezone.is_naive(when):
         when = when.replace(tzinfo=UTC)
-    return when
+    try:
+        utc = when.astimezone(UTC)
+    except OverflowError:  # 0001-01-01T00:00+14:00 is before the year 1 in UTC
+        utc = None
+    if utc is None or not DEADLINE_YEARS[0] <= utc.year <= DEADLINE_YEARS[1]:
+        # The database could store it, and then not read it back (PostgreSQL).
+        raise BadRequirement(
+            f"deadline must fall in the years {DEADLINE_YEARS[0]} to "
+            f"{DEADLINE_YEARS[1]}, not {value!r}"
+        )
+    return utc
 
 
 def store_farm_upload(

@@ -284,3 +284,23 @@ def test_a_job_whose_analysis_row_was_removed_asks_for_it_again(
     farm_job.refresh_from_db()
     assert farm_job.analysis.state == FileAnalysis.State.PENDING
     assert farm_job.reason == "waiting for the file's analysis"
+
+
+def test_a_job_whose_file_cannot_be_given_waits_saying_why_and_the_next_one_goes(
+    farm_printer: Callable[..., Printer], to_farm: Callable[..., FarmJob]
+) -> None:
+    """One farm job's broken file (removed outside printhost, a full disk) is that
+    job's problem: the pass goes on to the jobs behind it."""
+    farm_printer("mk3a")
+    farm_printer("mk3b")
+    broken = to_farm(SMALL, priority=5)
+    fine = to_farm(box_gcode(60, 40, 10))
+    broken.path.unlink()
+
+    assert Dispatcher().run_pass() == 1
+    broken.refresh_from_db()
+    fine.refresh_from_db()
+    assert fine.state == FarmJob.State.ASSIGNED
+    assert broken.state == FarmJob.State.WAITING
+    assert "could not be given to mk3" in broken.reason
+    assert "No such file" in broken.reason

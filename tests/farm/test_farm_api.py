@@ -118,6 +118,12 @@ def test_octoprint_and_moonraker_uploads_on_p_farm_join_the_queue(
          "priority must be a whole number"),
         ("/printer/job/farm?a=upload", {"deadline": "friday"}, 400,
          "deadline must be an ISO 8601 time"),
+        # Stored, these could not be read back on PostgreSQL (before the year 1
+        # or after 9999 in UTC) and every read of the queue would fail.
+        ("/printer/job/farm?a=upload", {"deadline": "0001-01-01T00:00:00+14:00"},
+         400, "deadline must fall in the years 2000 to 2200"),
+        ("/printer/job/farm?a=upload", {"deadline": "9999-12-31T23:59:59-14:00"},
+         400, "deadline must fall in the years 2000 to 2200"),
         ("/printer/job/farm?a=create&name=x.gcode", {}, 400, "the farm takes a=upload"),
         ("/p/farm/server/files/upload", {"checksum": "0" * 64}, 422, "does not match"),
     ],

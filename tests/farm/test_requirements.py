@@ -51,6 +51,8 @@ def test_requirements_are_read_from_form_fields_with_their_aliases() -> None:
         ({"tags": "x" * 41}, "a tag is 1 to 40"),
         ({"tags": 5}, "tags must be a list"),
         ({"tags": ",".join(f"t{i}" for i in range(21))}, "at most 20 tags"),
+        ({"tags": [1, {"a": 1}, None]}, "tags must be words"),
+        ({"nozzle": 10**400}, "nozzle must be a diameter in mm"),
     ],
 )
 def test_bad_requirements_say_what_is_wrong(values: dict, message: str) -> None:
@@ -133,3 +135,12 @@ def test_matching_ignores_case_and_needs_every_tag() -> None:
         "mk3-a",
         "mk3-b",
     ]
+
+
+def test_tags_are_refused_at_the_first_one_too_many() -> None:
+    """The count is checked as tags come, so a flood of them is not read to its
+    end (each tag read is compared with those before it): the 21st tag stops it,
+    before the bad one further on is even looked at."""
+    tags = [f"t{i}" for i in range(21)] + ["x" * 41] + [f"u{i}" for i in range(9)]
+    with pytest.raises(BadRequirement, match="at most 20 tags"):
+        parse_requirements({"tags": tags})

@@ -187,3 +187,21 @@ def test_upload_names_of_every_dialect_stay_in_the_storage(
         assert job.path.parent == storage
         assert "/" not in job.name and ".." not in job.name
     assert not list(tmp_path.rglob("evil.gcode"))
+
+
+@pytest.mark.django_db
+def test_a_name_too_long_for_the_file_system_is_cut_keeping_its_extension(
+    make_printer, tmp_path
+):
+    """300 characters would fail the file system (255 bytes) with an error 500 at
+    the upload, or later where a prefix is added (a farm copy): cut to 180."""
+    from jobs.services import MAX_NAME, enqueue_job, safe_name
+
+    source = tmp_path / "upload.part"
+    source.write_text("G28\n")
+    long = "benchy-" + "x" * 300 + ".gcode"
+    job = enqueue_job(make_printer(), source, name=long)
+    assert job.name == safe_name(long)
+    assert len(job.name) == MAX_NAME and job.name.endswith("x.gcode")
+    assert job.path.read_text() == "G28\n"
+    assert len(safe_name("a" * 300)) == MAX_NAME
