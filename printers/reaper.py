@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 
 from django.db import transaction
+from django.db.models.functions import Now
 from django.utils import timezone
 
 from jobs import history
@@ -43,7 +44,8 @@ def reap_silent_workers() -> list[int]:
     """
     now = timezone.now()
     silent = (
-        Printer.objects.filter(lease_expires_at__lt=now)
+        # The database's clock, which wrote the leases (printers/dbclock.py).
+        Printer.objects.filter(lease_expires_at__lt=Now())
         .exclude(lease_owner="")
         .exclude(state=Printer.State.OFFLINE)
         .values_list("pk", "lease_owner", "lease_expires_at", "worker_host__name")

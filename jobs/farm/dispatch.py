@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from django.db import connection, transaction
+from django.db.models.functions import Now
 from django.utils import timezone
 
 from jobs import services
@@ -95,6 +96,7 @@ def _take_rows(farm_job_id: int, printer_id: int) -> tuple[FarmJob, Printer]:
             raise _Refused(JOB_TAKEN, "gone, or held by another claim")
         printer = (
             Printer.objects.select_for_update(skip_locked=True)
+            .annotate(db_now=Now())  # its lease is judged by the database's clock
             .filter(pk=printer_id)
             .first()
         )
@@ -102,7 +104,7 @@ def _take_rows(farm_job_id: int, printer_id: int) -> tuple[FarmJob, Printer]:
         if not waiting.update(state=FarmJob.State.ASSIGNED):
             raise _Refused(JOB_TAKEN, "no longer waiting")
         farm_job = FarmJob.objects.get(pk=farm_job_id)
-        printer = Printer.objects.filter(pk=printer_id).first()
+        printer = Printer.objects.annotate(db_now=Now()).filter(pk=printer_id).first()
     if printer is None:
         raise _Refused(PRINTER_TAKEN, "held by another claim, or gone")
     return farm_job, printer

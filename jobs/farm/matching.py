@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from django.db.models import Exists, Max, OuterRef
-from django.utils import timezone
+from django.db.models.functions import Now
 
 from jobs.farm.models import FarmJob
 from jobs.farm.requirements import (
@@ -32,6 +32,7 @@ from jobs.farm.requirements import (
 )
 from jobs.farm.storing import WAITING_FOR_ANALYSIS
 from jobs.models import FileAnalysis, Job
+from printers.dbclock import database_now
 from printers.driver import LinkConfig
 from printers.models import Printer
 
@@ -54,7 +55,11 @@ def printer_rows() -> QuerySet[Printer]:
     own_work = Job.objects.filter(printer=OuterRef("pk"), state__in=OWN_WORK)
     return (
         Printer.objects.select_related("worker_host")
-        .annotate(has_work=Exists(own_work), last_end=Max("jobs__finished_at"))
+        .annotate(
+            has_work=Exists(own_work),
+            last_end=Max("jobs__finished_at"),
+            db_now=Now(),  # leases are judged by the database's clock
+        )
         .order_by("slug")
     )
 
@@ -102,13 +107,17 @@ def facts_of(
 
 
 def busy_reason(printer: Printer, *, has_work: bool) -> str:
-    """Why *printer* cannot take a farm job now, in a few words ("" if it can)."""
+    """Why *printer* cannot take a farm job now, in a few words ("" if it can).
+
+    Its lease is judged by the database's clock, as its worker wrote it
+    (`printers/dbclock.py`): the row's `db_now` when it was read with it (as
+    `printer_rows()` and the claim read it), else asked for."""
     if not printer.enabled or not printer.farm:
         return "takes no farm jobs"
     expires = printer.lease_expires_at
     if printer.state == Printer.State.OFFLINE:
         return "offline"
-    if expires is None or expires <= timezone.now():
+    if expires is None or expires <= _database_now_of(printer):
         return "offline (no worker holds it)"
     if printer.state == Printer.State.WAITSTART:
         return "waiting for its bed to be cleared"
@@ -117,6 +126,15 @@ def busy_reason(printer: Printer, *, has_work: bool) -> str:
     if has_work:
         return "has a job queued"
     return ""
+
+
+def _database_now_of(printer: Printer) -> datetime:
+    now = getattr(printer, "db_now", None)
+    if isinstance(now, str):  # SQLite hands the annotation back as text
+        now = datetime.fromisoformat(now)
+    if now is None:
+        return database_now()
+    return now if now.tzinfo else now.replace(tzinfo=UTC)
 
 
 def preference(printer: PrinterFacts) -> tuple[float, datetime, str]:

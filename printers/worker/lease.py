@@ -9,6 +9,13 @@ is ordered strictly before or after the write: after it, the write is refused.
 Locally the worker also knows how long its lease surely lasts (`valid_until`, counted
 from before the renewing UPDATE), and touches the port only inside that time.
 
+**Whose clock.** The expiry is written and compared by the database's clock
+(`printers/dbclock.py`), in the very statements that take, renew and check the
+lease; the reaper and the dispatcher judge it by the same clock. No computer's own
+wall clock enters it: a host whose clock is off, or stepped by NTP mid-print,
+neither loses a printer it renews nor keeps a dead one looking alive. `valid_until`
+counts on this computer's monotonic clock, which nothing steps.
+
 **The database away.** A worker that holds its port (`portlock`, `keep_while_away`)
 keeps driving its printer while the database does not answer: no other worker on
 its computer can open the port, and no worker on another host may claim the
@@ -29,7 +36,6 @@ import socket
 import time
 import uuid
 from contextlib import contextmanager
-from datetime import timedelta
 from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
@@ -41,8 +47,9 @@ from django.db import (
     transaction,
 )
 from django.db.models import Q
-from django.utils import timezone
+from django.db.models.functions import Now
 
+from printers.dbclock import now_plus, now_sql
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -103,18 +110,20 @@ class Lease:
     def claim(self) -> bool:
         """Take the printer if it is free, expired or already ours (one UPDATE),
         and only if it belongs to this worker's host: a printer is never handed
-        to a worker on another computer, whose port is not that printer."""
-        now = timezone.now()
+        to a worker on another computer, whose port is not that printer. Expiry
+        is the database's time (`printers/dbclock.py`), never this computer's."""
         free = (
-            Q(lease_owner="") | Q(lease_owner=self.owner) | Q(lease_expires_at__lt=now)
+            Q(lease_owner="")
+            | Q(lease_owner=self.owner)
+            | Q(lease_expires_at__lt=Now())
         )
         won = (
             Printer.objects.filter(pk=self.printer_id)
             .filter(free, self._on_this_host())
             .update(
                 lease_owner=self.owner,
-                lease_expires_at=now + timedelta(seconds=self.seconds),
-                worker_seen_at=now,
+                lease_expires_at=now_plus(self.seconds),
+                worker_seen_at=Now(),
             )
         )
         return won == 1
@@ -140,11 +149,9 @@ class Lease:
 
     def _extend(self) -> bool:
         """Renew: only while the row still names this worker (never re-take it)."""
-        now = timezone.now()
         return (
             Printer.objects.filter(pk=self.printer_id, lease_owner=self.owner).update(
-                lease_expires_at=now + timedelta(seconds=self.seconds),
-                worker_seen_at=now,
+                lease_expires_at=now_plus(self.seconds), worker_seen_at=Now()
             )
             == 1
         )
@@ -269,7 +276,7 @@ class Lease:
         still holds the lease, and lock the row (1) or find it is not (0). The row's
         *columns* (field name: value) are written by the same statement."""
         db = connections[Printer.objects.db]
-        head, values = "UPDATE {table} SET worker_seen_at = %s", []
+        head, values = "UPDATE {table} SET worker_seen_at = {now}", []
         for name, value in (columns or {}).items():
             field = Printer._meta.get_field(name)
             head += f", {db.ops.quote_name(field.column)} = %s"
@@ -279,21 +286,22 @@ class Lease:
     def _on_my_row(
         self, head: str, *, stamp: bool = False, values: list[Any] | None = None
     ) -> int:
-        """Run *head* (a SELECT or UPDATE of `{table}`; with *stamp*, its first `%s`
-        is now, and the next ones *values*) on the printer's row while it names
-        this worker, unexpired; how many rows it found. Plain SQL: an idle worker
-        checks every second and every batch of the log writes, and the ORM's query
-        cost several times the database's answer (1.6 ms against 0.1 ms here)."""
+        """Run *head* (a SELECT or UPDATE of `{table}`, `{now}` the database's
+        time; with *stamp*, its `%s` are *values*) on the printer's row while it
+        names this worker, unexpired by the database's clock; how many rows it
+        found. Plain SQL: an idle worker checks every second and every batch of
+        the log writes, and the ORM's query cost several times the database's
+        answer (1.6 ms against 0.1 ms here)."""
         db = connections[Printer.objects.db]
         table = db.ops.quote_name(Printer._meta.db_table)
-        now = db.ops.adapt_datetimefield_value(timezone.now())
+        now = now_sql(db.vendor)
         sql = (
-            head.format(table=table)
-            + " WHERE id = %s AND lease_owner = %s AND lease_expires_at > %s"
+            head.format(table=table, now=now)
+            + f" WHERE id = %s AND lease_owner = %s AND lease_expires_at > {now}"
         )
-        params = [now, *(values or [])] if stamp else []
+        params = list(values or []) if stamp else []
         with db.cursor() as cursor:
-            cursor.execute(sql, [*params, self.printer_id, self.owner, now])
+            cursor.execute(sql, [*params, self.printer_id, self.owner])
             return cursor.rowcount if stamp else len(cursor.fetchall())
 
     @contextmanager
