@@ -39,10 +39,10 @@ from jobs.farm.matching import (
     OWN_WORK,
     busy_reason,
     decide,
+    every_waiting_job,
     facts_of,
     farm_printers,
     part_of,
-    waiting_jobs,
 )
 from jobs.farm.models import FarmJob
 from jobs.farm.requirements import unmet
@@ -214,7 +214,8 @@ class Dispatcher:
         """Give every waiting job a free printer can take; write why the others
         wait. Returns how many jobs were given.
 
-        1. Read the farm's printers once; walk the waiting jobs in queue order.
+        1. Read the farm's printers once; walk every waiting job in queue order
+           (`every_waiting_job`, read in batches).
         2. For each, decide (`matching.decide`) with the printers given a job in
            this pass left out; claim. When the claim loses the printer, leave it
            out too and decide again (at most `CLAIM_ATTEMPTS` times); when it loses
@@ -230,7 +231,7 @@ class Dispatcher:
         taken: set[str] = set()
         given = 0
         changed: dict[str, list[int]] = defaultdict(list)
-        for farm_job in waiting_jobs():
+        for farm_job in every_waiting_job():
             if farm_job.analysis_id is None:  # its row was removed: ask again
                 request_farm_analysis(farm_job)
             reason = ""

@@ -37,9 +37,10 @@ from printers.driver import LinkConfig
 from printers.models import Printer
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Iterable, Iterator, Sequence
 
     from django.db.models import QuerySet
+
 
 #: Job states that keep a printer from taking a farm job.
 OWN_WORK = (Job.State.QUEUED, Job.State.PRINTING, Job.State.PAUSED)
@@ -213,12 +214,28 @@ def waiting_reason(fitting: Sequence[PrinterFacts], taken: set[str]) -> str:
 
 
 def waiting_jobs(limit: int = 500) -> list[FarmJob]:
-    """The waiting farm jobs in queue order (priority, deadline, age)."""
-    return list(
+    """The first *limit* waiting farm jobs in queue order (priority, deadline, age)."""
+    return list(_waiting().order_by(*FarmJob._meta.ordering)[:limit])
+
+
+def every_waiting_job(batch: int = 500) -> Iterator[FarmJob]:
+    """Every waiting farm job in queue order, read *batch* at a time: a dispatcher's
+    pass sees the whole queue, so jobs that must wait at its head (for their
+    analysis, or a printer no one has) never keep the ones behind from a free
+    printer. The order is read first, as ids: jobs given meanwhile shift nothing."""
+    order = _waiting().order_by(*FarmJob._meta.ordering).values_list("pk", flat=True)
+    ids = list(order)
+    for start in range(0, len(ids), batch):
+        chunk = ids[start : start + batch]
+        rows = _waiting().in_bulk(chunk)
+        yield from (rows[pk] for pk in chunk if pk in rows)
+
+
+def _waiting() -> QuerySet[FarmJob]:
+    return (
         FarmJob.objects.filter(state=FarmJob.State.WAITING)
         .select_related("analysis")
         .defer("analysis__result")
-        .order_by(*FarmJob._meta.ordering)[:limit]
     )
 
 

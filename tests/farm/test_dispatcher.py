@@ -304,3 +304,23 @@ def test_a_job_whose_file_cannot_be_given_waits_saying_why_and_the_next_one_goes
     assert broken.state == FarmJob.State.WAITING
     assert "could not be given to mk3" in broken.reason
     assert "No such file" in broken.reason
+
+
+def test_a_job_behind_more_than_a_batch_of_waiting_ones_still_gets_a_free_printer(
+    farm_printer: Callable[..., Printer], to_farm: Callable[..., FarmJob]
+) -> None:
+    """600 jobs ahead of it wait for their analysis; the pass reads the whole
+    queue, so the analysed one behind them is given to the free printer."""
+    printer = farm_printer("mk3")
+    ahead = to_farm(SMALL, analyse=False, priority=5)
+    same = {"sha256": ahead.sha256, "analysis": ahead.analysis, "priority": 5}
+    FarmJob.objects.bulk_create(
+        FarmJob(name=f"ahead-{n}.gcode", reason=ahead.reason, **same)
+        for n in range(599)
+    )
+    behind = to_farm(box_gcode(60, 40, 10))
+
+    assert Dispatcher().run_pass() == 1
+    behind.refresh_from_db()
+    assert behind.state == FarmJob.State.ASSIGNED and behind.printer == printer
+    assert FarmJob.objects.filter(state=FarmJob.State.WAITING).count() == 600
