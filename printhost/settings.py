@@ -369,8 +369,9 @@ PRINTHOST_HEARTBEAT_SECONDS = env_positive("PRINTHOST_HEARTBEAT_SECONDS", 5.0)
 
 # -- metrics (printhost/metrics*.py, `/metrics`, `manage.py serve_metrics`) --------
 #: A scrape must send `Authorization: Bearer <this>`; empty = only an admin's session
-#: or API key may read /metrics.
-PRINTHOST_METRICS_TOKEN = env_str("PRINTHOST_METRICS_TOKEN", "")
+#: or API key may read /metrics. Stripped: a token pasted with a newline or a space
+#: would match no request.
+PRINTHOST_METRICS_TOKEN = env_str("PRINTHOST_METRICS_TOKEN", "").strip()
 #: Where each daphne process keeps its request-latency histogram (one file each,
 #: summed by a scrape); one folder per computer.
 PRINTHOST_METRICS_DIR = Path(

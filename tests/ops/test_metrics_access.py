@@ -120,3 +120,19 @@ def test_a_refused_scrape_never_reads_the_body(with_token, client):
     request = response.wsgi_request
     # Django keeps the body in `_body` once someone read it; nobody did.
     assert not hasattr(request, "_body")
+
+
+@pytest.mark.parametrize("written", [f"{TOKEN}\n", f"  {TOKEN} "])
+def test_a_token_set_with_stray_whitespace_still_matches(
+    monkeypatch: pytest.MonkeyPatch, tmp_path, written: str
+) -> None:
+    """An environment file's line pasted with a newline or spaces around the token
+    would otherwise lock every scrape out."""
+    import runpy
+
+    from tests.conftest import ROOT
+
+    monkeypatch.setenv("PRINTHOST_DATA_DIR", str(tmp_path))
+    monkeypatch.setenv("PRINTHOST_METRICS_TOKEN", written)
+    loaded = runpy.run_path(str(ROOT / "printhost" / "settings.py"))
+    assert loaded["PRINTHOST_METRICS_TOKEN"] == TOKEN

@@ -66,9 +66,9 @@ def answer(environ: dict[str, Any], host: str) -> tuple[str, Headers, bytes]:
         body, content_type = scrape(environ.get("HTTP_ACCEPT", ""), host=host)
     except DatabaseError as error:
         logger.warning("metrics of worker host %s: database error (%s)", host, error)
-        return _json(
-            "503 Service Unavailable", f"the database is not reachable: {error}"
-        )
+        # Its details (the database's address, its user) are for the log only:
+        # this answer may go to a caller that showed no credentials yet.
+        return _json("503 Service Unavailable", "the database is not reachable")
     return "200 OK", [("Content-Type", content_type)], body
 
 
@@ -86,7 +86,11 @@ def application_for(host: str) -> Callable[..., Iterable[bytes]]:
 
 
 class _QuietHandler(WSGIRequestHandler):
-    """Requests go to the debug log, not to stderr line by line."""
+    """Requests go to the debug log, not to stderr line by line. A connection that
+    sends nothing is dropped after `timeout` seconds: the server answers one at a
+    time, and an idle one would hold off every scrape (and SIGTERM)."""
+
+    timeout = 2.0
 
     def log_message(self, format: str, *args: Any) -> None:
         logger.debug("metrics scrape from %s: " + format, self.client_address[0], *args)
