@@ -73,10 +73,13 @@ def enqueue_job(
     user: AbstractBaseUser | None = None,
     queue: bool = True,
     move: bool = False,
+    sha256: str = "",
 ) -> Job:
     """Check *source*, copy it into the printer's storage and queue a job for it.
 
-    1. Inspect the file (binary, empty, too-long lines -> BadGcode) before storing.
+    1. Inspect the file (binary, empty, too-long lines -> BadGcode) before storing;
+       a given *sha256* must be the file's (ChecksumMismatch), checked before the
+       job exists: a queued job is a worker's to start at once.
     2. Copy it beside the other jobs under a unique name (never overwrite one).
     3. Create the job at the end of the printer's queue (or only store it when
        *queue* is false: OctoPrint's upload without print, Repetier's models).
@@ -98,6 +101,7 @@ def enqueue_job(
         name=name,
         grbl=config.firmware == "grbl",
     )
+    check_sha256(name, facts.sha256, sha256)
     target = stored_file(printer, f"{uuid.uuid4().hex[:8]}-{name}")
     if move:
         shutil.move(source, target)
@@ -134,17 +138,22 @@ def enqueue_upload(
             user=user,
             queue=queue,
             move=True,
+            sha256=sha256,
         )
     finally:
         if staging.exists():
             staging.unlink()
-    if sha256 and sha256.lower() != job.sha256:
-        delete_job_file(job)
-        job.delete()
-        raise ChecksumMismatch(
-            f"{name}: SHA-256 {job.sha256} does not match the given {sha256.lower()}"
-        )
     return job
+
+
+def check_sha256(name: str, measured: str, given: str) -> None:
+    """ChecksumMismatch unless *given* (a client's SHA-256; "" for none) is
+    *measured*."""
+    given = given.strip().lower()
+    if given and given != measured:
+        raise ChecksumMismatch(
+            f"{name}: SHA-256 {measured} does not match the given {given}"
+        )
 
 
 def receive_upload(upload: UploadedFile | BinaryIO, target: Path) -> None:

@@ -24,8 +24,6 @@ from django.utils import timezone
 from jobs.gcode import BadGcode
 from jobs.models import Job, Upload
 from jobs.services import (
-    ChecksumMismatch,
-    delete_job_file,
     enqueue_job,
     safe_name,
     storage_dir,
@@ -166,7 +164,7 @@ def finish(upload: Upload, *, origin: str = "", queue: bool = True) -> Job:
     1. The size must be the announced one (if one was announced).
     2. `enqueue_job` checks the file (binary, empty, too-long lines) and moves it into
        the printer's storage; SHA-256 is measured on the way.
-    3. A given SHA-256 must match, else the job is removed again (ChecksumMismatch).
+    3. A given SHA-256 must match (ChecksumMismatch), checked before the job exists.
     A file that fails the checks ends the session too: its bytes cannot become a job.
     """
     have = offset_of(upload)
@@ -183,18 +181,12 @@ def finish(upload: Upload, *, origin: str = "", queue: bool = True) -> Job:
             user=upload.user,
             queue=queue,
             move=True,
+            sha256=upload.sha256_expected,
         )
-    except BadGcode:
+    except BadGcode:  # ChecksumMismatch too: the job was never made
         discard(upload)
         raise
     Upload.objects.filter(pk=upload.pk).delete()
-    if upload.sha256_expected and upload.sha256_expected != job.sha256:
-        delete_job_file(job)
-        job.delete()
-        raise ChecksumMismatch(
-            f"{upload.name}: SHA-256 {job.sha256} does not match the given "
-            f"{upload.sha256_expected}"
-        )
     return job
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import compileall
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -39,6 +40,27 @@ def sim_factory(tmp_path: Path) -> Iterator[Callable[..., Sim]]:
     yield factory
     for sim in started:
         sim.stop()
+
+
+@contextlib.contextmanager
+def rows_made(*models: type) -> Iterator[list[object]]:
+    """Every row of *models* created inside the block, even one deleted again before
+    it ends (a queued job lives long enough for its worker to start it)."""
+    from django.db.models.signals import post_save
+
+    made: list[object] = []
+
+    def note(sender: type, instance: object, created: bool, **kwargs: object) -> None:
+        if created:
+            made.append(instance)
+
+    for model in models:
+        post_save.connect(note, sender=model, weak=False)
+    try:
+        yield made
+    finally:
+        for model in models:
+            post_save.disconnect(note, sender=model)
 
 
 def wait_for(

@@ -29,7 +29,7 @@ from jobs.farm.requirements import BadRequirement, Requirements, parse_requireme
 from jobs.gcode import BadGcode, inspect_file
 from jobs.models import FileAnalysis
 from jobs.paths import inside
-from jobs.services import receive_upload, safe_name
+from jobs.services import check_sha256, receive_upload, safe_name
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -117,12 +117,14 @@ def store_farm_upload(
     deadline: datetime | None = None,
     origin: str = "",
     user: AbstractBaseUser | None = None,
+    sha256: str = "",
 ) -> FarmJob:
     """Check and store an upload for the farm queue, and ask for its analysis.
 
     1. A usable name; the bytes staged in the farm folder (moved when the upload
        is already on disk).
-    2. The size limit and `inspect_file` (BadGcode: nothing is kept).
+    2. The size limit, `inspect_file` and the client's *sha256* if it gave one
+       (BadGcode, ChecksumMismatch: nothing is kept, no dispatcher sees a job).
     3. The file under a unique name, the farm job and its analysis request in one
        transaction; the task goes to Celery once it commits.
     """
@@ -139,6 +141,7 @@ def store_farm_upload(
                 f"{settings.PRINTHOST_MAX_JOB_BYTES} bytes"
             )
         facts = inspect_file(staging, name=name)
+        check_sha256(name, facts.sha256, sha256)
         staging.replace(target)
         with transaction.atomic():
             farm_job = FarmJob.objects.create(

@@ -101,11 +101,12 @@ def upload_values(request: HttpRequest) -> dict[str, Any]:
 
 
 def store_farm_request(
-    request: HttpRequest, file: UploadedFile, *, name: str = ""
+    request: HttpRequest, file: UploadedFile, *, name: str = "", sha256: str = ""
 ) -> FarmJob:
     """Queue an upload for the farm with the request's requirements, audited.
 
-    Bad requirements are refused (400) before the file is stored.
+    Bad requirements are refused (400) before the file is stored; a given *sha256*
+    must be the file's (ChecksumMismatch: nothing stored, nothing audited).
     """
     caller = farm_caller(request, Role.OPERATOR)
     values = upload_values(request)
@@ -123,6 +124,7 @@ def store_farm_request(
         deadline=deadline,
         origin=caller.origin,
         user=caller.user if caller.authenticated else None,
+        sha256=sha256,
     )
     record(
         caller,

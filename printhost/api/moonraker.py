@@ -15,7 +15,6 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
-from jobs.farm.storing import remove_file
 from jobs.gcode import BadGcode
 from jobs.models import Job, running_job
 from jobs.services import ChecksumMismatch, FileRemoved
@@ -155,15 +154,8 @@ def _farm_upload(request: HttpRequest) -> HttpResponse:
     upload = request.FILES.get("file")
     if upload is None:
         raise HttpError(400, "no file part: send the G-code as multipart field 'file'")
-    checksum = request.POST.get("checksum", "").strip().lower()
-    farm_job = store_farm_request(request, upload)
-    if checksum and checksum != farm_job.sha256:
-        remove_file(farm_job)
-        farm_job.delete()
-        raise ChecksumMismatch(
-            f"{farm_job.name}: SHA-256 {farm_job.sha256} does not match the given "
-            f"{checksum}"
-        )
+    checksum = request.POST.get("checksum", "")
+    farm_job = store_farm_request(request, upload, sha256=checksum)
     response = JsonResponse(
         {
             "item": {

@@ -19,6 +19,7 @@ from jobs.models import Job
 from printers.models import Printer
 from printhost.access import issue_key
 from printhost.models import PrinterRole, Role
+from tests.conftest import rows_made
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -102,8 +103,11 @@ def test_moonraker_upload_with_matching_checksum_is_kept(
 def test_moonraker_upload_with_wrong_checksum_is_422_and_nothing_kept(
     client: object, key: str, storage: object
 ) -> None:
-    reply = moonraker_upload(client, key, "a.gcode", to_print=True, checksum="0" * 64)
+    with rows_made(Job) as made:
+        reply = moonraker_upload(
+            client, key, "a.gcode", to_print=True, checksum="0" * 64
+        )
     assert reply.status_code == 422
     assert "does not match" in reply.json()["error"]["message"]
-    assert not Job.objects.exists()
+    assert made == []  # never queued, not even for a moment its worker could see
     assert not [p for p in storage.rglob("*") if p.is_file()]  # type: ignore[attr-defined]

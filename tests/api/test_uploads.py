@@ -16,6 +16,7 @@ from jobs.models import Job, Upload
 from printers.models import Printer
 from printhost.access import issue_key
 from printhost.models import PrinterRole, Role
+from tests.conftest import rows_made
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -147,10 +148,11 @@ def test_missing_offset_header_is_400(key, printer) -> None:
 
 def test_sha256_mismatch_is_422_and_keeps_no_job(key, printer) -> None:
     upload_id = open_session(key, sha256="0" * 64)
-    status, body, _ = patch(key, upload_id, 0, DATA)
+    with rows_made(Job) as made:
+        status, body, _ = patch(key, upload_id, 0, DATA)
     assert status == 422
     assert "SHA-256" in body["error"]
-    assert not Job.objects.exists()
+    assert made == []  # never queued, not even for a moment its worker could see
 
 
 def test_binary_file_is_refused_at_the_end(key, printer) -> None:
