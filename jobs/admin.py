@@ -92,6 +92,8 @@ class JobAdmin(admin.ModelAdmin):
                 f"{gone} job(s) kept as history: their files were removed after "
                 "their printer's job_file_days; upload the files again",
             )
+        # The whole file again, a resumed run too: its preamble goes back to the
+        # height it once stopped at, over a bed now to be cleared.
         count = queryset.exclude(state__in=ACTIVE_STATES).update(
             state=Job.State.QUEUED,
             lines_sent=0,
@@ -100,6 +102,9 @@ class JobAdmin(admin.ModelAdmin):
             message="",
             started_at=None,
             finished_at=None,
+            start_line=0,
+            start_offset=0,
+            preamble="",
         )
         messages.info(request, f"{count} job(s) queued again")
 

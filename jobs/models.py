@@ -195,6 +195,11 @@ class Job(models.Model):
         return f"{self.name} on {self.printer_id} ({self.state})"
 
     @property
+    def is_resume(self) -> bool:
+        """A resumed run: it starts with its plan's preamble, at `start_line`."""
+        return bool(self.start_line or self.preamble)
+
+    @property
     def path(self) -> Path:
         """Absolute path of the stored file (PathRefused if the row names one outside
         the job storage: a row is never trusted to stay in it). On a worker host,

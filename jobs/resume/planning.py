@@ -25,12 +25,14 @@ from jobs.analysing import analysis_of
 from jobs.commands import request_action
 from jobs.eta import IN_FLIGHT
 from jobs.gcode import BadGcode, iter_commands
+from jobs.hostcache import sha256_of
 from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
 from jobs.paths import PathRefused
 from jobs.resume.preamble import ResumePoint, build_preamble
 from jobs.resume.state import MachineState, StateReader
 from printers import broadcast
 from printers.models import QueuedCommand
+from printers.reaper import LAST_SAVED
 from printers.worker.spool import next_position
 
 if TYPE_CHECKING:
@@ -121,6 +123,21 @@ def _check_resumable(job: Job) -> None:
         present = False
     if not present:
         raise ResumeRefused(409, f"job {job.pk}: the stored file is gone")
+    if LAST_SAVED in job.message:
+        # The control plane marked it interrupted when the host fell silent: the
+        # host may only be cut off, still printing it (it says so when it is back),
+        # and the line it reached is in its journal, not here.
+        raise ResumeRefused(
+            409, f"job {job.pk}: its worker host stopped answering, and may still be "
+            "printing it; a resume waits until a worker of the printer has settled "
+            "the run from the host's journal (the host is back, or the printer was "
+            "moved to another host)",
+        )  # fmt: skip
+    if sha256_of(job.path) != job.sha256:
+        raise ResumeRefused(
+            409, f"job {job.pk}: the stored file changed since the run (its SHA-256 "
+            "is not the run's): its lines are not the ones printed",
+        )  # fmt: skip
 
 
 def _analysis(job: Job) -> Analysis:

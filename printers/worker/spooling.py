@@ -52,7 +52,10 @@ class Spooling:
             stream = self.sd.upload_stream(job)
         else:
             stream = spool.stream_for(job)
-        if job.kind != Job.Kind.SD_UPLOAD:
+        # A resumed run brings its own start (its plan's preamble: heat, home X and
+        # Y only, back to the height it stopped at): the start script would home Z
+        # into the part, or probe the bed with the part on it.
+        if job.kind != Job.Kind.SD_UPLOAD and not job.is_resume:
             self.host.run_script("start")
         self.host.submit(stream)
         self.update_state()

@@ -158,3 +158,41 @@ def test_a_pending_plan_or_a_busy_printer_does_not_start(
     assert code == 409 and f"printing job {other.pk}" in body["error"]
     assert ResumePlan.objects.get().state == ResumePlan.State.READY
     assert not Job.objects.filter(resume_of=stopped).exists()
+
+
+def test_a_run_the_reaper_marked_is_not_resumed_until_its_host_settled_it(
+    keys, stopped
+) -> None:
+    """Marked interrupted when its host fell silent: the host may only be cut off and
+    still printing it, and its exact line is in the host's journal."""
+    from printers.reaper import LAST_SAVED
+
+    message = (
+        f"interrupted: worker host shelf-1 stopped answering at line 30 {LAST_SAVED}"
+    )
+    Job.objects.filter(pk=stopped.pk).update(message=message)
+    stopped.refresh_from_db()
+    code, body = call("post", "/printer/resume/mk3", keys(), id=stopped.pk)
+    assert code == 409 and "may still be printing it" in body["error"]
+    _nothing_changed(stopped)
+
+
+def test_a_plan_made_before_the_reaper_marked_the_run_does_not_start(
+    keys, stopped
+) -> None:
+    from printers.reaper import LAST_SAVED
+
+    status, body = call("post", "/printer/resume/mk3", keys(), id=stopped.pk)
+    plan = body["data"]["id"]
+    assert make_plan(plan) == "ready"
+    Job.objects.filter(pk=stopped.pk).update(message=f"interrupted {LAST_SAVED}")
+    code, body = call("post", "/printer/resume/mk3/start", keys(), plan=plan)
+    assert code == 409 and "may still be printing it" in body["error"]
+    assert Job.objects.count() == 1
+
+
+def test_a_file_changed_since_the_run_is_not_resumed(keys, stopped) -> None:
+    stopped.path.write_text(TEXT.replace("G1 Z0.6", "G1 Z0.7"))
+    code, body = call("post", "/printer/resume/mk3", keys(), id=stopped.pk)
+    assert code == 409 and "changed since the run" in body["error"]
+    _nothing_changed(stopped)

@@ -26,12 +26,18 @@ pytestmark = pytest.mark.slow
 STALL_AT = 700
 
 
+#: The printer's start script: it opens the first run, never the resumed one (a
+#: real one homes Z and probes the bed, with the part on it then).
+START_SCRIPT = "M117 printer start script"
+
+
 def _job_commands(sim: Sim) -> list[tuple[str, str]]:
-    """(command, the state it found) of every command but the host's own."""
+    """(command, the state it found) of every command but the host's own and the
+    start script's."""
     out = []
     for line in sim.recorded():
         text, _, state = line.partition("\t@ ")
-        if not text.startswith(HOST_COMMANDS):
+        if not text.startswith((*HOST_COMMANDS, START_SCRIPT)):
             out.append((text, state))
     return out
 
@@ -40,7 +46,9 @@ class Interrupted:
     """A job printed until the firmware stalls, its worker SIGKILLed, the printer
     reset (a power cut: position, heaters and modes gone), the job interrupted."""
 
-    def __init__(self, tmp_path: Path, sim: Sim, text: str, firmware: str) -> None:
+    def __init__(
+        self, tmp_path: Path, sim: Sim, text: str, firmware: str, start: str = ""
+    ) -> None:
         self.sim, self.text = sim, text
         host = self.host = Host(tmp_path)
         host.env["PRINTHOST_LEASE_SECONDS"] = "2"
@@ -49,7 +57,7 @@ class Interrupted:
         host.shell(
             "from printers.models import Printer; Printer.objects.create(name='P0', "
             f"slug='p0', port={str(sim.link)!r}, baud=250000, firmware={firmware!r}, "
-            "temperature_interval=0)"
+            f"temperature_interval=0, start_script={start!r})"
         )
         host.manage("add_job", "p0", str(tmp_path / "job.gcode"))
         # The analysis, as the Celery worker makes it (a resume needs it).
@@ -129,7 +137,7 @@ def marlin_run(tmp_path: Path, sim_factory):
         "marlin", "--time-scale", "0", "--baud", "0", "--record-state",
         "--busy-after", str(STALL_AT), "--busy-seconds", "600",
     )  # fmt: skip
-    run = Interrupted(tmp_path, sim, layered_print(), "marlin")
+    run = Interrupted(tmp_path, sim, layered_print(), "marlin", start=START_SCRIPT)
     yield run
     run.close()
 
@@ -144,6 +152,8 @@ def test_sigkilled_job_resumes_at_its_last_acked_line_after_the_preamble(marlin_
     assert [c for c, _ in recorded] == commands[:line] + preamble + commands[line:], (
         "a line was lost or repeated, or the preamble is not between"
     )
+    started = [c for c in run.sim.recorded() if c.startswith(START_SCRIPT)]
+    assert len(started) == 1, "the start script ran before the resumed run too"
     assert "G28 X Y" in preamble and "G28" not in preamble  # Z is never homed
     assert "M190 S60" in preamble and "M109 T0 S210" in preamble
     assert "M106 P0 S200" in preamble or line < commands.index("M106 S200")

@@ -283,3 +283,21 @@ def test_a_resume_plan_not_started_keeps_the_file_of_an_old_failed_run(
     assert failed.path.exists()
     ResumePlan.objects.filter(pk=plan.pk).update(state="started")
     assert remove_expired_job_files(now=now)["files"] == 1
+
+
+def test_the_admin_queues_a_resumed_run_again_as_the_whole_file(
+    make_printer: Callable[..., Printer], make_job: Callable[..., Job]
+) -> None:
+    """Queued again from the start, over a bed to be cleared: not its preamble, which
+    goes back to the height the first run stopped at, in mid-air now."""
+    job = make_job(make_printer(), "G28\nG1 X1\nG1 X2\n")
+    Job.objects.filter(pk=job.pk).update(
+        state="failed", start_line=2, start_offset=10, preamble="G92 Z5.2"
+    )
+    admin = get_user_model().objects.create_superuser("root", password="x")
+    client = Client()
+    client.force_login(admin)
+    client.post("/admin/jobs/job/", {"action": "requeue", "_selected_action": [job.pk]})
+    job.refresh_from_db()
+    assert job.state == "queued" and not job.is_resume
+    assert (job.start_line, job.start_offset, job.preamble) == (0, 0, "")
