@@ -271,7 +271,7 @@ def _parse_error(text: str, message: str) -> Reply:
         resend_kind = ReplyKind.LINE_NUMBER_ERROR
     elif any(m in lower for m in _CHECKSUM_ERRORS) or _looks_like_line_error(lower):
         resend_kind = ReplyKind.CHECKSUM_ERROR
-    elif _JUNK.search(message):
+    elif _JUNK.search(message) and _garbled(message, lower):
         # A garbled line error (line noise on the way back): it cannot be read,
         # so it is a resend-flow error of unknown line, never a fatal one.
         return Reply(ReplyKind.CHECKSUM_ERROR, _IMPORTANT, text)
@@ -315,6 +315,15 @@ def _garbled_flow_line(text: str, lower: str) -> Reply | None:
     ):
         return Reply(ReplyKind.RESEND, _IMPORTANT, text)
     return None
+
+
+def _garbled(message: str, lower: str) -> bool:
+    """Line noise rather than the firmware's own words: a line error once the junk
+    is out, or more junk than a firmware's own symbols make (RepRapFirmware's
+    heater faults say `1.5°C/sec`: a readable error, and a fatal one)."""
+    if _looks_like_line_error(_JUNK.sub("", lower).strip()):
+        return True
+    return len(_JUNK.findall(message)) * 10 > len(message)
 
 
 def _looks_like_line_error(lower: str) -> bool:

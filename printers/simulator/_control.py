@@ -24,6 +24,7 @@ COMMANDS = (
     "flush",
     "click",
     "action <text>",
+    "say <text>",
     "sd",
     "sd-stop",
 )
@@ -35,6 +36,8 @@ def run(sim: Simulator, line: str, now: float) -> str:
     name = name.lower()
     if name == "action":
         return _action(sim, line.split(None, 1)[1:], now)
+    if name == "say":
+        return _say(sim, line.split(None, 1)[1:])
     if name in ("sd", "sd-stop"):
         return _card(sim, stop=name == "sd-stop", args=args)
     if name in ("reset", "close", "reopen", "halt", "stats", "flush", "click") and args:
@@ -102,6 +105,19 @@ def _action(sim: Simulator, rest: list[str], now: float) -> str:
     if printer is None:
         raise ValueError("action: only a Marlin firmware sends host action commands")
     printer(text)
+    return "ok"
+
+
+def _say(sim: Simulator, rest: list[str]) -> str:
+    """`say <text>`: the firmware prints a line of its own, as another firmware words
+    it (`say Error: Heater 1 fault: ... 1.5°C/sec`, RepRapFirmware's)."""
+    text = rest[0].strip() if rest else ""
+    if not text or "\n" in text or "\r" in text:
+        raise ValueError("say takes the line to print, e.g. `say Error: heater fault`")
+    say = getattr(sim.firmware, "say", None)
+    if say is None:
+        raise ValueError("say: only a Marlin firmware prints lines of its own here")
+    say(text)
     return "ok"
 
 

@@ -33,7 +33,7 @@ serial baud rate in both directions. Prints one JSON line when ready:
 {"ready": true, "pty": ..., "tcp": ..., "pid": ...}.
 Control socket commands: reset, close, reopen, busy <seconds>,
 corrupt <share>, drop-ok <every_n>, halt, stats, flush (the record written
-out now), click, action <text>,
+out now), click, action <text>, say <text>,
 sd (the card as JSON), sd-stop (the display stops the card's print).
 """
 

@@ -224,6 +224,10 @@ class MarlinFirmware(LineInput):
         self._execute(now)
         return True
 
+    def say(self, text: str) -> None:
+        """Print *text* as a line of the firmware's own (an error, a notice)."""
+        self._print(text)
+
     def host_action(self, text: str) -> None:
         """Print `//action:<text>` (as a LCD menu or a macro would make it)."""
         self._print(f"//action:{text}")

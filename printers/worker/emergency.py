@@ -22,11 +22,21 @@ def after_m112(worker: PrinterWorker, who: str) -> str:
     The path goes into the request's reply, a response-log note and (when the
     board was reset) the printer's state message.
     """
-    if worker.printer.is_grbl or worker.transport is None:
+    if worker.transport is None:
+        return ""  # the write failed: the caller says so
+    if worker.printer.is_grbl:
+        # The soft reset's banner must not clear the halt (`_on_reset`): a reset
+        # with nothing moving leaves GRBL unlocked, and the next job would run.
+        worker.expect_reset = True
+        worker.note(f"emergency stop{who}: feed hold and soft reset sent")
+        worker.halted = f"emergency stop{who}: reconnect to run jobs again"
         return ""
     if worker.emergency_parser:
         path = "M112 sent; the firmware's emergency parser acts on it at once"
         worker.note(f"emergency stop{who}: {path}")
+        worker.halted = (
+            f"emergency stop{who}: {path}; reset the printer, then reconnect"
+        )
         return path
     why = (
         "the firmware has no emergency parser"

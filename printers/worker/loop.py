@@ -22,7 +22,7 @@ from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
 from printers.protocol.pacing import Pacer
-from printers.streaming import QueueState, StreamHost
+from printers.streaming import QueueState, Stream, StreamHost
 from printers.transport import (
     SerialTransport,
     TransportClosed,
@@ -114,6 +114,8 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         #: An emergency DTR reset is under way: its reset banner keeps the halt.
         self.expect_reset = False
         self.last_stream_error = ""
+        #: The start script of the job being started (its failure fails the job).
+        self.start_script: Stream | None = None
         self.next_poll = 0.0
         self.next_read = 0.0
         self.next_progress = 0.0

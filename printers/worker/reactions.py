@@ -92,6 +92,9 @@ class Reactions:
                 self._on_alarm(message)
             case ev.FirmwareError(message=message):
                 if self.host.fail_stream(f"the firmware reported an error: {message}"):
+                    # Nothing more of the job goes, the lines waiting to be sent
+                    # again included.
+                    self.protocol.abandon()
                     self.stop_motion_after_error()
             case ev.LinkFailed(message=message):
                 self.stop_streams(message, note=True)
@@ -299,6 +302,8 @@ class Reactions:
 
     def _on_stream_end(self: PrinterWorker, stream: Stream) -> None:
         if not spool.is_job(stream):
+            if stream is self.start_script and stream.outcome == "failed":
+                self._start_script_failed(stream)
             self.hold_or_run(partial(self.requests.ended, stream))
             return
         if stream.outcome == "completed" and self._dry_run() and not stream.message:
@@ -319,6 +324,16 @@ class Reactions:
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
         self.hold_or_run(partial(self._finish, stream, state))
+
+    def _start_script_failed(self: PrinterWorker, script: Stream) -> None:
+        """The job the script opens does not start on a machine the script did not
+        set up (GRBL's error:N leaves it where it was): its first lines, offered
+        in the same turn, are not written either."""
+        if self.host.fail_stream(
+            f"the printer's start script failed ({script.message}); the job was "
+            "not started"
+        ):
+            self.protocol.abandon()
 
     def _finish(self: PrinterWorker, stream: Stream, state: Job.State) -> None:
         with self.lease.held():

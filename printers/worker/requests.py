@@ -167,6 +167,12 @@ class RequestPoller(EspCommands):
         for text in texts:
             worker.protocol.send_emergency(text, now)
         worker.pump(now)
+        if worker.transport is None:  # the write failed: port_lost stopped the job
+            self._finish(
+                row, f"error: {word} was not written: the port went away; the "
+                "machine may still be moving: cut its power",
+            )  # fmt: skip
+            return
         path = ""
         if full_stop:
             who = f" by {row.origin}" if row.origin else ""

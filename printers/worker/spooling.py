@@ -56,7 +56,7 @@ class Spooling:
         # Y only, back to the height it stopped at): the start script would home Z
         # into the part, or probe the bed with the part on it.
         if job.kind != Job.Kind.SD_UPLOAD and not job.is_resume:
-            self.host.run_script("start")
+            self.start_script = self.host.run_script("start")
         self.host.submit(stream)
         self.update_state()
 

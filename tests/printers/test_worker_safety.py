@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from jobs.commands import emergency_stop
@@ -187,9 +189,11 @@ def test_grbl_emergency_stop_is_feed_hold_and_soft_reset(
 
     sim = sim_factory("grbl", "--baud", "115200", "--time-scale", "1")
     printer = make_printer(
-        port=str(sim.link), baud=115200, firmware="grbl", status_interval=0.2
-    )
+        port=str(sim.link), baud=115200, firmware="grbl", status_interval=0.2,
+        auto_start=True,
+    )  # fmt: skip
     job = make_job(printer, segments(2000, cnc=True))
+    after = make_job(printer, segments(20, cnc=True), name="next.gcode")
     worker = start_worker(printer)
     try:
         wait_for(lambda: len(sim.executed()) > 20, 30, "motion", step=worker.tick)
@@ -208,6 +212,11 @@ def test_grbl_emergency_stop_is_feed_hold_and_soft_reset(
 
         wait_for(banner, 10, "GRBL's banner after the soft reset", step=worker.tick)
         worker.log.flush()
+        # The reset left GRBL unlocked: the stop's halt holds all the same, so the
+        # next job (auto_start) does not set the machine moving again.
+        worker.maybe_claim_job(worker.clock())
+        assert worker.halted.startswith("emergency stop by tester")
+        assert job_state(after).state == "queued"
     finally:
         worker.stop()
 
@@ -221,3 +230,167 @@ def test_grbl_emergency_stop_is_feed_hold_and_soft_reset(
     assert any(t.startswith("Grbl 1.1") for t in texts[hold:]), "no reset banner"
     assert job_state(job).message == "emergency stop by tester"
     assert QueuedCommand.objects.get(pk=heating.pk).reply.startswith("error: M108")
+
+
+def test_a_heater_fault_worded_with_a_degree_sign_stops_the_job(
+    sim_factory, make_printer, make_job
+):
+    """RepRapFirmware words heater faults with a degree sign: a readable error, not
+    line noise to be recovered from (which sent its lines again)."""
+    sim = sim_factory(
+        "marlin", "--baud", "115200", "--time-scale", "1",
+        "--dialect", "reprapfirmware",
+    )  # fmt: skip
+    printer = make_printer(port=str(sim.link), baud=115200)
+    job = make_job(printer, segments(2000))
+    worker = start_worker(printer)
+    fault = (
+        "Error: Heater 1 fault: temperature rising much more slowly than the "
+        "expected 1.5°C/sec"
+    )
+    try:
+        wait_for(lambda: len(job_lines(sim)) > 20, 30, "motion", step=worker.tick)
+        assert sim.control(f"say {fault}") == "ok"
+        wait_for(
+            lambda: job_state(job).state == "failed", 10, "the job to fail",
+            step=worker.tick,
+        )  # fmt: skip
+    finally:
+        worker.stop()
+    assert "Heater 1 fault" in job_state(job).message
+
+
+class ScriptedMarlin:
+    """The worker's port: a Marlin that answers each line `ok`, and a numbered line
+    in `script` with the bytes given there instead."""
+
+    def __init__(self, script: dict[int, bytes]) -> None:
+        self.script = script
+        self.replies: list[bytes] = []
+        self.written: list[bytes] = []
+        #: How many lines were written when the worker read `mark`.
+        self.read_mark_at: int | None = None
+        self.mark = b"Temperature reading fault"
+        self.woken = False
+
+    def read(self, timeout: float, *, wake: int | None = None) -> bytes:
+        data, self.replies = b"".join(self.replies), []
+        if self.mark in data and self.read_mark_at is None:
+            self.read_mark_at = len(self.written)
+        return data
+
+    def read_waiting(self) -> bytes:
+        return self.read(0.0)
+
+    def write(self, data: bytes) -> None:
+        import re
+
+        for line in data.splitlines():
+            self.written.append(line)
+            number = re.match(rb"N(\d+) ", line)
+            if b"M115" in line:
+                self.replies.append(b"FIRMWARE_NAME:Marlin 2.1.2\n")
+            if number and int(number[1]) in self.script:
+                self.replies.append(self.script.pop(int(number[1])))
+            else:
+                self.replies.append(b"ok\n")
+
+    def close(self) -> None:
+        pass
+
+    def pulse_dtr(self) -> str:
+        return "no DTR line"
+
+
+def test_a_firmware_error_while_a_resend_waits_sends_nothing_more_of_the_job(
+    monkeypatch, make_printer, make_job
+):
+    """The job fails, and the lines the firmware asked for again stay unsent too."""
+    from printers.worker import port
+
+    firmware = ScriptedMarlin({
+        10: b"Error:Line Number is not Last Line Number+1, Last Line: 8\n"
+            b"Resend: 9\nok\n"
+            b"Error: Temperature reading fault on heater 1: sensor open circuit\n",
+    })  # fmt: skip
+    monkeypatch.setattr(
+        port, "SerialTransport",
+        type("Scripted", (), {"open": staticmethod(lambda url, baud: firmware)}),
+    )  # fmt: skip
+    printer = make_printer(port="/dev/ttyScripted", flow="buffered")
+    job = make_job(printer, "".join(f"G1 X{i} Y1 F3000\n" for i in range(60)))
+    worker = start_worker(printer)
+    worker.pacer.byte_time = 0.0  # answered at once: nothing to pace
+    try:
+        wait_for(
+            lambda: job_state(job).state == "failed", 10, "the job to fail",
+            step=worker.tick,
+        )  # fmt: skip
+        # Turns for as long as a drain before the resend takes (R1), and more.
+        until = time.monotonic() + 1.0
+        while time.monotonic() < until:
+            worker.tick()
+    finally:
+        worker.stop()
+    assert "Temperature reading fault" in job_state(job).message
+    assert firmware.read_mark_at is not None
+    after = [w for w in firmware.written[firmware.read_mark_at :] if b"G1 X" in w]
+    assert after == [], f"job lines written after the error: {after}"
+
+
+def test_a_stop_the_port_did_not_take_is_answered_as_an_error(
+    monkeypatch, make_printer, make_job
+):
+    """The write failed (the port went away): the client hears the stop did not go
+    out, never "ok"."""
+    from printers.models import QueuedCommand
+    from printers.transport import TransportClosed
+    from printers.worker import port
+
+    class Unplugged(ScriptedMarlin):
+        def write(self, data: bytes) -> None:
+            if b"M112" in data:
+                raise TransportClosed("/dev/ttyScripted: write failed: gone")
+            super().write(data)
+
+    firmware = Unplugged({})
+    monkeypatch.setattr(
+        port, "SerialTransport",
+        type("Scripted", (), {"open": staticmethod(lambda url, baud: firmware)}),
+    )  # fmt: skip
+    printer = make_printer(port="/dev/ttyScripted")
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.transport is not None, 5, "connected", step=worker.tick)
+        stop = emergency_stop(printer, origin="tester")
+        wait_for(
+            lambda: QueuedCommand.objects.get(pk=stop.pk).reply, 5, "the reply",
+            step=worker.tick,
+        )  # fmt: skip
+    finally:
+        worker.stop()
+    reply = QueuedCommand.objects.get(pk=stop.pk).reply
+    assert reply.startswith("error: M112 was not written"), reply
+
+
+def test_a_grbl_start_script_refused_stops_the_job_before_its_first_line(
+    sim_factory, make_printer, make_job
+):
+    """`G1 X5` without a feed rate is GRBL's error:22: the job does not run on a
+    machine its start script did not set up."""
+    sim = sim_factory("grbl", "--baud", "0", "--time-scale", "0")
+    printer = make_printer(
+        port=str(sim.link), firmware="grbl", start_script="G21\nG1 X5"
+    )
+    text = "G0 X1 Y1\nG1 X2 Y2 F300\n"
+    job = make_job(printer, text)
+    worker = start_worker(printer)
+    try:
+        wait_for(
+            lambda: job_state(job).state == "failed", 10, "the job to fail",
+            step=worker.tick,
+        )  # fmt: skip
+    finally:
+        worker.stop()
+    assert "start script failed" in job_state(job).message
+    assert "G0X1Y1" not in [c.replace(" ", "") for c in sim.executed()]
