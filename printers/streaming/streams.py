@@ -61,6 +61,16 @@ class StreamType(enum.Enum):
         return self in (StreamType.FS_FILE_STREAM, StreamType.SD_FILE_STREAM)
 
     @property
+    def is_file(self) -> bool:
+        """Its lines come from a stored file (not a client's own commands)."""
+        return self in (
+            StreamType.FS_FILE_STREAM,
+            StreamType.SD_FILE_STREAM,
+            StreamType.FS_FILE_SCRIPT,
+            StreamType.SD_FILE_SCRIPT,
+        )
+
+    @property
     def is_script(self) -> bool:
         """Goes to the script queue: runs to its end, ahead of the stream queue."""
         return self in (
@@ -204,6 +214,8 @@ class Stream:
     message: str = ""
     #: The printer's side of the stream (its SD card); None for a plain stream.
     printer_side: PrinterSide | None = None
+    #: How many files run it ([ESP700] read from a file: 1; from that one's: 2...).
+    depth: int = 0
     _reader: Iterator[Line] | None = field(default=None, repr=False)
 
     def generate(self) -> Iterator[Line]:

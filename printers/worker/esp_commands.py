@@ -21,6 +21,11 @@ if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
 
 
+#: [ESP700] read from a file may run another file (a macro calling a macro), this
+#: many deep at most.
+MAX_DEPTH = 4
+
+
 class EspCommands:
     """RequestPoller's [ESPxxx] part; an action ([ESP701]action=PAUSE) is run as a
     request's action is (`_action`)."""
@@ -28,12 +33,15 @@ class EspCommands:
     worker: PrinterWorker
     _action: Callable[[str, str], str]
 
-    def esp(self, text: str, origin: str) -> str:
-        """Run [ESP700]/[ESP701]; the reply also goes to the response log."""
+    def esp(self, text: str, origin: str, *, within: Stream | None = None) -> str:
+        """Run [ESP700]/[ESP701]; the reply also goes to the response log.
+
+        *within*: the stream the line was read from (None: a client typed it).
+        """
         try:
             request = parse_esp(text)
             if isinstance(request, EspFileRequest):
-                reply = self._esp_file(request, origin)
+                reply = self._esp_file(request, origin, within)
             else:
                 reply = self._esp_control(request, origin)
         except (EspError, BadGcode) as error:
@@ -41,10 +49,23 @@ class EspCommands:
         self.worker.log.add(reply, 4)
         return reply
 
-    def _esp_file(self, request: EspFileRequest, origin: str) -> str:
+    def _esp_file(
+        self, request: EspFileRequest, origin: str, within: Stream | None
+    ) -> str:
         from jobs.services import check_stored_file, queue_stored_file, stored_file
 
         printer = self.worker.printer
+        from_file = within is not None and within.type.is_file
+        depth = within.depth + 1 if from_file and within is not None else 0
+        if from_file and request.type.is_stream:
+            # A job that queues a job (itself, or one that queues it back) would
+            # queue jobs for ever: only a client queues one.
+            raise EspError("[ESP700]stream= cannot be used inside a file")
+        if depth > MAX_DEPTH:
+            raise EspError(
+                f"[ESP700] runs files at most {MAX_DEPTH} deep (a file that runs "
+                "itself?)"
+            )
         if request.type.is_stream:
             job = queue_stored_file(printer, request.path, origin=origin)
             return esp_reply(700, f"queued as job {job.pk}", as_json=request.as_json)
@@ -56,7 +77,7 @@ class EspCommands:
         check_stored_file(printer, path, name=request.path)
         lines = (Line(c.index, c.text, c.end_offset) for c in iter_commands(path))
         self.worker.host.submit(
-            Stream(request.type, lines, name=request.path, origin=origin)
+            Stream(request.type, lines, name=request.path, origin=origin, depth=depth)
         )
         return esp_reply(700, "ok", as_json=request.as_json)
 

@@ -297,7 +297,7 @@ class RequestPoller(EspCommands):
 
     def answer_esp(self, stream: Stream, text: str) -> None:
         """An [ESPxxx] line was read from a stream: answer it to its origin."""
-        reply = self.esp(text, stream.origin)
+        reply = self.esp(text, stream.origin, within=stream)
         row_id = _row_id(stream)
         if row_id is not None:
             self._finish_id(row_id, reply)

@@ -9,7 +9,7 @@ import pytest
 from jobs.commands import send_command
 from jobs.models import Job
 from jobs.services import storage_dir
-from printers.models import QueuedCommand
+from printers.models import QueuedCommand, ResponseLine
 from printers.sample_gcode import commands_of, segments
 from printers.streaming.esp import EspError, EspFileRequest, EspStreamControl, parse_esp
 from printers.streaming.streams import StreamType
@@ -160,3 +160,44 @@ def test_esp700_script_checks_the_file_like_an_upload_before_sending_a_line(work
     assert "M117 first" not in executed
     assert "M117 before" not in executed
     assert not Job.objects.exists()
+
+
+@pytestmark_db
+def test_a_file_that_runs_itself_stops_at_the_nesting_limit(worker):
+    """A macro may run a macro, a few deep: one that runs itself (twice) does not
+    run for ever."""
+    from printers.worker.esp_commands import MAX_DEPTH
+
+    printer = worker.printer
+    (storage_dir(printer) / "loop.gcode").write_text(
+        "M117 pass\n[ESP700]/fs/loop.gcode\n[ESP700]/fs/loop.gcode\n"
+    )
+    assert reply_of(send_command(printer, "[ESP700]/fs/loop.gcode"), worker) == "ok"
+    wait_for(
+        lambda: not worker.host.script_queue, 30, "the macros to run out",
+        step=worker.tick,
+    )  # fmt: skip
+    worker.log.flush()
+    passes = worker.sim.executed().count("M117 pass")
+    assert passes == 2 ** (MAX_DEPTH + 1) - 1  # each level runs it twice, then no more
+    refused = ResponseLine.objects.filter(
+        printer=printer, text__contains=f"at most {MAX_DEPTH} deep"
+    )
+    assert refused.exists()
+
+
+@pytestmark_db
+def test_a_file_cannot_queue_jobs(worker, make_job):
+    """[ESP700]stream= read from a job would queue a job each time that job runs."""
+    printer = worker.printer
+    (storage_dir(printer) / "again.gcode").write_text("M117 once\n")
+    job = make_job(printer, "M117 job\n[ESP700]stream=/sd/again.gcode\nM117 end\n")
+    wait_for(
+        lambda: Job.objects.get(pk=job.pk).state == "completed", 20, "the job",
+        step=worker.tick,
+    )  # fmt: skip
+    worker.log.flush()
+    assert Job.objects.count() == 1
+    assert ResponseLine.objects.filter(
+        printer=printer, text__contains="cannot be used inside a file"
+    ).exists()
