@@ -50,6 +50,10 @@ logger = logging.getLogger("printhost.terminal")
 
 #: How often the listeners are matched with the printer table (s).
 RESCAN_SECONDS = 5.0
+#: A client that takes in none of its output for this long is disconnected: what it
+#: does not read piles up, and a session stuck writing to it would no longer see
+#: its key revoked (s).
+DRAIN_SECONDS = 30.0
 
 
 class Session:
@@ -206,7 +210,7 @@ class Session:
         if lines:
             text = "".join(f"{printable(line['text'])}\n" for line in lines)
             self.writer.write(text.encode())
-            await self.writer.drain()
+            await self.drain()
 
     async def commands(self) -> None:
         while True:
@@ -237,6 +241,12 @@ class Session:
                     "error: filter takes a number (1 commands, 2 acks, 4 other)"
                 )
             return
+        # The key as it is now, not as it was at login: one revoked (or its user
+        # deactivated, its role taken) sends nothing more.
+        reason = await database_sync_to_async(self.still_allowed)()
+        if reason:
+            await self.say(f"error: {reason}")
+            raise ConnectionError(reason)
         try:
             row = await database_sync_to_async(run_command)(
                 self.caller, self.printer, text
@@ -255,7 +265,18 @@ class Session:
 
     async def say(self, text: str) -> None:
         self.writer.write(f"{printable(text)}\n".encode())
-        await self.writer.drain()
+        await self.drain()
+
+    async def drain(self) -> None:
+        """Wait for the client to take in what was written, DRAIN_SECONDS at most
+        (ConnectionError then: the session ends)."""
+        try:
+            await asyncio.wait_for(self.writer.drain(), DRAIN_SECONDS)
+        except TimeoutError:
+            # Closed at once, its unsent output dropped: a close would wait to send
+            # it to a client that reads nothing.
+            self.writer.transport.abort()
+            raise ConnectionError("the client takes in none of its output") from None
 
 
 class TerminalServer:

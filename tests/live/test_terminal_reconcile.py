@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -12,7 +13,7 @@ from django.contrib.auth import get_user_model
 from django.utils import timezone
 
 from printers import live
-from printers.models import Printer
+from printers.models import Printer, ResponseLine
 from printers.terminal import Session
 from printhost.access import issue_key
 from printhost.models import ApiKey, PrinterRole, Role
@@ -123,3 +124,84 @@ def test_a_terminal_session_ends_when_its_key_is_revoked(
     said, end = asyncio.run(asyncio.wait_for(scenario(), 30))
     assert said == b"error: the API key was revoked\n"
     assert end == b"", "the session should have been closed"
+
+
+def test_a_command_after_the_key_was_revoked_is_refused_and_ends_the_session(
+    make_printer: Callable[..., Printer], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Checked at each command, not only now and then: a session that never gets to
+    its reconcile (its client stopped reading) sends nothing more either."""
+    from printers.models import QueuedCommand
+
+    printer = make_printer(slug="mk3", state="idle")
+    user = get_user_model().objects.create_user("operator", password="operator")
+    PrinterRole.objects.create(user=user, printer=printer, role=Role.OPERATOR)
+    key = issue_key(user, "terminal")[1]
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 3600)
+
+    def revoke() -> None:
+        ApiKey.objects.update(revoked_at=timezone.now())
+
+    async def scenario() -> tuple[bytes, bytes]:
+        server, reader, writer, _ = await open_session(printer, key)
+        await database_sync_to_async(revoke)()
+        writer.write(b"M117 after the revocation\n")
+        said = await asyncio.wait_for(reader.readline(), 10)
+        end = await asyncio.wait_for(reader.read(), 10)
+        writer.close()
+        server.close()
+        return said, end
+
+    said, end = asyncio.run(asyncio.wait_for(scenario(), 30))
+    assert said == b"error: the API key was revoked\n"
+    assert end == b"", "the session should have been closed"
+    assert not QueuedCommand.objects.filter(text__startswith="M117").exists()
+
+
+def test_a_client_that_reads_nothing_is_disconnected(
+    watched: tuple[Printer, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its output would pile up, and its session, stuck writing, would no longer see
+    its key revoked."""
+    from printers import terminal
+
+    printer, key = watched
+    monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.1)
+    monkeypatch.setattr(terminal, "DRAIN_SECONDS", 0.5)
+    long_line = "x" * 2000
+
+    def flood(batch: int) -> None:  # 4 MB more the client never reads
+        ResponseLine.objects.bulk_create(
+            ResponseLine(
+                printer=printer, seq=i, time=timezone.now(), text=long_line, kind=4
+            )
+            for i in range(batch * 2000 + 1, batch * 2000 + 2001)
+        )
+
+    async def scenario() -> bool:
+        ended = asyncio.Event()
+
+        async def session(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+            try:
+                await Session(printer, r, w).run()
+            finally:
+                ended.set()
+
+        server = await asyncio.start_server(session, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(f"{key}\n".encode())
+        await asyncio.wait_for(reader.readline(), 10)  # the greeting, then no more
+        try:
+            for batch in range(30):  # until the session gives up on the client
+                await database_sync_to_async(flood)(batch)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(ended.wait(), 1)
+                if ended.is_set():
+                    break
+        finally:
+            writer.close()
+            server.close()
+        return ended.is_set()
+
+    assert asyncio.run(asyncio.wait_for(scenario(), 60))
