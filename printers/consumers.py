@@ -9,7 +9,9 @@ Out: `hello` (state snapshot and the log's last id), `lines`, `state`,
 `temperatures`, `job`, `truncated`, `queued`, `reply`, `gone`, `error`. In: `{"cmd": ...}` and
 `{"action": ...}` (operator role); on the all-printers feed they name a `printer`.
 `?last=<id>` resumes after that id (`0` = everything the log keeps; on the
-all-printers feed `?last.<slug>=<id>` per printer); `?filter=<bits>`
+all-printers feed `?last.<slug>=<id>` per printer), a page (`live.PAGE_LINES`) at
+most: further back, a `truncated` notice with `paged: true` says where the feed
+starts, and `/printer/response` has the rest; `?filter=<bits>`
 hides kinds as Repetier's filter does (8 is never hidden).
 """
 
@@ -133,6 +135,12 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         await broadcast.watch(printer.pk)
         snap = await database_sync_to_async(live.snapshot)(printer.pk)
         start = snap["last"] if last is None else last
+        # A page of history at most: a connection must not make the server hold
+        # the whole log for a client that may never read it (several such
+        # connections ran daphne's memory up by hundreds of MB).
+        paged = snap["last"] - start > live.PAGE_LINES
+        if paged:
+            start = snap["last"] - live.PAGE_LINES
         feed = Feed(printer, live.LineCursor(start, self.filter))
         self.feeds[printer.pk] = feed
         await self.send_json(
@@ -150,6 +158,11 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
                 "job": snap["job"],
             }
         )
+        if paged:
+            await self.send_json(
+                {"type": "truncated", "first": start + 1, "paged": True,
+                 "printer": printer.slug}
+            )  # fmt: skip
         await self.catch_up(feed, None)
 
     async def catch_up(self, feed: Feed, upto: int | None) -> None:

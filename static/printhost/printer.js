@@ -446,7 +446,10 @@ function onMessage(message) {
       break;
     }
     case "truncated":
-      appendLine({ "data-test": "reply", "data-type": "8" }, "… older lines were pruned from the log");
+      appendLine(
+        { "data-test": "reply", "data-type": "8" },
+        message.paged ? "… older lines are in the log's history" : "… older lines were pruned from the log",
+      );
       break;
     case "error":
       showError(message.message);

@@ -213,6 +213,31 @@ def test_a_resume_older_than_the_log_keeps_says_where_it_starts(
     assert ids == list(range(100, 106))
 
 
+def test_a_resume_further_back_than_a_page_gets_the_newest_page_and_says_so(
+    printer: Printer,
+) -> None:
+    """`last=0` on a long log sends one page, not the whole log: the server would
+    hold it all for a client that may never read it. Older lines are in the log's
+    history (`/printer/response`)."""
+    key = user_key("viewer", Role.VIEWER)
+    newest = live.PAGE_LINES + 500
+    add_lines(printer, 1, newest)
+
+    async def scenario() -> tuple[dict, list[int]]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
+        await client.receive_json_from(timeout=TIMEOUT)
+        notice = await client.receive_json_from(timeout=TIMEOUT)
+        ids = await line_ids(client, newest)
+        await client.disconnect()
+        return notice, ids
+
+    notice, ids = run(scenario())
+    first = newest - live.PAGE_LINES + 1
+    assert notice == {"type": "truncated", "first": first, "paged": True,
+                      "printer": "mk3"}  # fmt: skip
+    assert ids == list(range(first, newest + 1))
+
+
 def test_the_filter_hides_kinds_but_not_non_maskable_lines(printer: Printer) -> None:
     key = user_key("viewer", Role.VIEWER)
     add_lines(printer, 1, 2, kind=2)
