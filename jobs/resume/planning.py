@@ -15,6 +15,7 @@ same file ahead of the printer's queue, linked to the old one.
 from __future__ import annotations
 
 import logging
+import re
 from collections import deque
 from typing import TYPE_CHECKING
 
@@ -205,7 +206,10 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
     printer = job.printer
     stop = max(job.lines_acked, 0)
     reader = StateReader(printer.firmware)
-    recent: deque[float] = deque(maxlen=IN_FLIGHT)
+    # Where the nozzle may be: the Z after each of the last IN_FLIGHT moves the
+    # firmware acknowledged (its planner holds moves, not other commands), and the
+    # Z before the oldest of them, which may not have run yet either.
+    recent: deque[float] = deque([reader.state.position[2]], maxlen=IN_FLIGHT + 1)
     at_line = None
     offset = start = 0
     for command in iter_commands(job.path):
@@ -214,7 +218,7 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
         if command.index >= max(line, stop):
             break
         reader.feed(command.text)
-        if command.index >= stop - IN_FLIGHT:
+        if command.index < stop and _MOVE.match(command.text):
             recent.append(reader.state.position[2])
         offset = command.end_offset
         if command.index + 1 == line:
@@ -240,6 +244,10 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
         warnings=warnings,
     )
     return point, start
+
+
+#: A command the firmware's planner holds (G0 to G3).
+_MOVE = re.compile(r"\s*[Gg]0*[0-3](?![\d.])")
 
 
 def start_plan(
