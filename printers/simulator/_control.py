@@ -98,9 +98,7 @@ def _card(sim: Simulator, *, stop: bool, args: list[str]) -> str:
 
 def _action(sim: Simulator, rest: list[str], now: float) -> str:
     """`action pause`: the firmware prints `//action:pause` (host action commands)."""
-    text = rest[0].strip() if rest else ""
-    if not text or "\n" in text or "\r" in text:
-        raise ValueError("action takes the text after //action:, e.g. `action pause`")
+    text = _one_line("action takes the text after //action:, e.g. `action pause`", rest)
     printer = getattr(sim.firmware, "host_action", None)
     if printer is None:
         raise ValueError("action: only a Marlin firmware sends host action commands")
@@ -111,14 +109,22 @@ def _action(sim: Simulator, rest: list[str], now: float) -> str:
 def _say(sim: Simulator, rest: list[str]) -> str:
     """`say <text>`: the firmware prints a line of its own, as another firmware words
     it (`say Error: Heater 1 fault: ... 1.5°C/sec`, RepRapFirmware's)."""
-    text = rest[0].strip() if rest else ""
-    if not text or "\n" in text or "\r" in text:
-        raise ValueError("say takes the line to print, e.g. `say Error: heater fault`")
+    text = _one_line(
+        "say takes the line to print, e.g. `say Error: heater fault`", rest
+    )
     say = getattr(sim.firmware, "say", None)
     if say is None:
         raise ValueError("say: only a Marlin firmware prints lines of its own here")
     say(text)
     return "ok"
+
+
+def _one_line(usage: str, rest: list[str]) -> str:
+    """The command's argument: one line of text (ValueError with *usage* if not)."""
+    text = rest[0].strip() if rest else ""
+    if not text or "\n" in text or "\r" in text:
+        raise ValueError(usage)
+    return text
 
 
 def _one_number(name: str, args: list[str]) -> float:

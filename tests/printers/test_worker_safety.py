@@ -302,21 +302,26 @@ class ScriptedMarlin:
         return "no DTR line"
 
 
+def opens(monkeypatch: pytest.MonkeyPatch, firmware: ScriptedMarlin) -> None:
+    """The worker opens *firmware* as its printer's port."""
+    from printers.worker import port
+
+    monkeypatch.setattr(
+        port, "SerialTransport",
+        type("Scripted", (), {"open": staticmethod(lambda url, baud: firmware)}),
+    )  # fmt: skip
+
+
 def test_a_firmware_error_while_a_resend_waits_sends_nothing_more_of_the_job(
     monkeypatch, make_printer, make_job
 ):
     """The job fails, and the lines the firmware asked for again stay unsent too."""
-    from printers.worker import port
-
     firmware = ScriptedMarlin({
         10: b"Error:Line Number is not Last Line Number+1, Last Line: 8\n"
             b"Resend: 9\nok\n"
             b"Error: Temperature reading fault on heater 1: sensor open circuit\n",
     })  # fmt: skip
-    monkeypatch.setattr(
-        port, "SerialTransport",
-        type("Scripted", (), {"open": staticmethod(lambda url, baud: firmware)}),
-    )  # fmt: skip
+    opens(monkeypatch, firmware)
     printer = make_printer(port="/dev/ttyScripted", flow="buffered")
     job = make_job(printer, "".join(f"G1 X{i} Y1 F3000\n" for i in range(60)))
     worker = start_worker(printer)
@@ -345,7 +350,6 @@ def test_a_stop_the_port_did_not_take_is_answered_as_an_error(
     out, never "ok"."""
     from printers.models import QueuedCommand
     from printers.transport import TransportClosed
-    from printers.worker import port
 
     class Unplugged(ScriptedMarlin):
         def write(self, data: bytes) -> None:
@@ -354,10 +358,7 @@ def test_a_stop_the_port_did_not_take_is_answered_as_an_error(
             super().write(data)
 
     firmware = Unplugged({})
-    monkeypatch.setattr(
-        port, "SerialTransport",
-        type("Scripted", (), {"open": staticmethod(lambda url, baud: firmware)}),
-    )  # fmt: skip
+    opens(monkeypatch, firmware)
     printer = make_printer(port="/dev/ttyScripted")
     worker = start_worker(printer)
     try:
