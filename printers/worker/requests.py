@@ -7,6 +7,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 from django.db import connections
+from django.db.models import Case, When
 from django.utils import timezone
 
 from jobs.models import Job
@@ -54,12 +55,14 @@ class RequestPoller(EspCommands):
         """
         if not self._any_pending():
             return 0
+        # Emergencies first in the read itself: one behind 200 other rows waits
+        # for no other turn.
+        emergencies_first = Case(When(kind=Kind.EMERGENCY, then=0), default=1)
         rows = list(
             QueuedCommand.objects.filter(
                 printer_id=self.worker.printer.pk, state=RowState.PENDING
-            ).order_by("id")[:200]
+            ).order_by(emergencies_first, "id")[:200]
         )
-        rows.sort(key=lambda row: row.kind != Kind.EMERGENCY)
         taken = False
         for row in rows:
             if row.kind != Kind.EMERGENCY and not taken:

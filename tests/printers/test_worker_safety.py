@@ -395,3 +395,27 @@ def test_a_grbl_start_script_refused_stops_the_job_before_its_first_line(
         worker.stop()
     assert "start script failed" in job_state(job).message
     assert "G0X1Y1" not in [c.replace(" ", "") for c in sim.executed()]
+
+
+def test_an_emergency_behind_hundreds_of_requests_goes_out_in_the_same_poll(
+    monkeypatch, make_printer
+):
+    """The poll reads 200 rows at most: emergencies are read first, not in turn."""
+    from printers.models import QueuedCommand
+
+    firmware = ScriptedMarlin({})
+    opens(monkeypatch, firmware)
+    printer = make_printer(port="/dev/ttyScripted")
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.transport is not None, 5, "connected", step=worker.tick)
+        QueuedCommand.objects.bulk_create(
+            QueuedCommand(printer=printer, text=f"M117 note {n}", origin="tester")
+            for n in range(250)
+        )
+        stop = emergency_stop(printer, origin="tester")
+        worker.requests.poll(worker.clock())
+        assert b"M112" in firmware.written
+        assert QueuedCommand.objects.get(pk=stop.pk).state == "done"
+    finally:
+        worker.stop()
