@@ -147,8 +147,16 @@ class StateReader:
             self._set_position(words)
         elif code == "G28" and not self.cnc:
             self._home(words)
+        elif code == "G10" and "P" in words and "L" not in words and not self.cnc:
+            # RepRapFirmware's tool temperatures: G10 P<tool> S<active> R<standby>
+            # (no retraction; a G10 P without S or R sets offsets).
+            if "S" in words:
+                state.heaters[f"tool{int(words['P'])}"] = words["S"]
+        elif code == "M568" and not self.cnc:  # RepRapFirmware 3.3+: the same
+            if "S" in words:
+                state.heaters[f"tool{int(words.get('P', state.tool))}"] = words["S"]
         elif code in ("G10", "G11") and not self.cnc:
-            state.retracted = code == "G10" and "P" not in words and "L" not in words
+            state.retracted = code == "G10" and "L" not in words
         elif code[0] == "T":
             state.tool = int(code[1:])
         elif code in HEATERS and not self.cnc:

@@ -50,6 +50,15 @@ def test_heaters_fans_and_settings_keep_their_last_values_by_heater_and_index():
     assert state.settings == {"M204": "M204 P800 T1500"}
 
 
+def test_reprapfirmware_tool_temperatures_are_heaters_not_retractions():
+    state = state_after(
+        "M140 S60", "G10 P0 S215 R170", "G10", "G10 P1 S190", "M568 P2 S230",
+    )  # fmt: skip
+    assert state.heaters == {"bed": 60.0, "tool0": 215.0, "tool1": 190.0,
+                             "tool2": 230.0}  # fmt: skip
+    assert state.retracted  # the bare G10, which a later G10 P S leaves as it is
+
+
 def test_a_grbl_block_applies_every_code_in_it():
     state = state_after(
         "G21 G91 G56", "S9000 M4", "M7", "M8", "G1 X1 F200", "X1", "M9",
