@@ -111,9 +111,9 @@ def _fff(point: ResumePoint) -> list[str]:
         lines.append(
             f"M106 P{index} S{number(speed)} ; fan" if speed > 0 else f"M107 P{index}"
         )
-    lines += [
-        f"{text} ; as the file set it" for _, text in sorted(state.settings.items())
-    ]
+    # In the order the file last set them: a later one may override part of one
+    # before it (`M204 P800 T1500`, then `M204 P900`).
+    lines += [f"{text} ; as the file set it" for text in state.settings.values()]
     lines += _modes(state)
     return lines
 

@@ -9,8 +9,9 @@ What a resume needs to put back, and nothing else: the modes (units, absolute or
 relative axes and E, GRBL's work coordinate system and feed mode), the logical
 position (as G92 left it) and E, the feedrate, heater targets, fans, the tool,
 and the last of each setting command (acceleration, speed and flow factors,
-linear advance...) to replay. Heaters, fans and settings are kept by code and
-index, so a resume sends one command for each. Positions are millimetres,
+linear advance...) to replay. Heaters and fans are kept by code and index, so a
+resume sends one command for each; settings by code, the tool or extruder they
+name, and the words they set (`_setting`). Positions are millimetres,
 whatever units the file uses.
 """
 
@@ -32,6 +33,8 @@ REPLAYED = frozenset(
         "M566", "M572", "M593", "M900",
     }
 )  # fmt: skip
+#: The word of a replayed setting that says which tool or extruder it is for.
+SELECTORS = {"M221": "T", "M900": "T", "M572": "D"}
 #: Heater targets: code -> (the heater's name, waits).
 HEATERS = {
     "M104": ("tool", False),
@@ -165,11 +168,28 @@ class StateReader:
             index = str(int(words.get("P", 0)))
             state.fans[index] = words.get("S", 255.0) if code == "M106" else 0.0
         elif code in REPLAYED and not self.cnc:
-            state.settings[code] = text
+            self._setting(code, words, text)
         elif code in LEVELLING and not self.cnc:
             state.levelling = code != "M420" or words.get("S", 1.0) != 0
         elif self.cnc:
             self._cnc_mode(code, words)
+
+    def _setting(self, code: str, words: dict[str, float], text: str) -> None:
+        """Keep *text* for replay, with the code's earlier commands for the same
+        tool or extruder that it wholly covers dropped (`M204 P800` then `M204
+        T1500` both stay; `M221 T0 S90` and `M221 T1 S110` both stay; a later
+        `M204 P900 T1000` replaces both M204s). The last set is replayed last."""
+        selector = SELECTORS.get(code, "")
+        which = f"{selector}{int(words[selector])}" if selector in words else ""
+        letters = "".join(sorted(set(words) - {selector}))
+        settings = self.state.settings
+        for key in list(settings):
+            old_code, _, rest = key.partition(" ")
+            old_which, _, old_letters = rest.partition(" ")
+            covered = set(old_letters) <= set(letters)
+            if old_code == code and old_which == which and covered:
+                del settings[key]
+        settings[f"{code} {which} {letters}"] = text
 
     def _scale(self, value: float) -> float:
         return value * INCH if self.state.inches else value

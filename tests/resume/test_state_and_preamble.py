@@ -47,7 +47,18 @@ def test_heaters_fans_and_settings_keep_their_last_values_by_heater_and_index():
     assert state.tool == 1  # M204's T is an acceleration, not a tool
     assert state.heaters == {"tool0": 215.0, "tool1": 180.0, "bed": 60.0}
     assert state.fans == {"0": 0.0, "1": 255.0}
-    assert state.settings == {"M204": "M204 P800 T1500"}
+    assert list(state.settings.values()) == ["M204 P800 T1500"]
+
+
+def test_settings_for_other_tools_or_other_words_are_all_replayed_in_order():
+    state = state_after(
+        "M221 T0 S90", "M221 T1 S110", "M204 P800", "M204 T1500", "M572 D0 S0.05",
+        "M572 D1 S0.07", "M221 T0 S95", "M204 P900",
+    )  # fmt: skip
+    assert list(state.settings.values()) == [
+        "M221 T1 S110", "M204 T1500", "M572 D0 S0.05", "M572 D1 S0.07",
+        "M221 T0 S95", "M204 P900",
+    ]  # fmt: skip
 
 
 def test_reprapfirmware_tool_temperatures_are_heaters_not_retractions():
