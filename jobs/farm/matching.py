@@ -131,11 +131,7 @@ def busy_reason(printer: Printer, *, has_work: bool) -> str:
 
 def _database_now_of(printer: Printer) -> datetime:
     now = getattr(printer, "db_now", None)
-    if isinstance(now, str):  # SQLite hands the annotation back as text
-        now = datetime.fromisoformat(now)
-    if now is None:
-        return database_now()
-    return now if now.tzinfo else now.replace(tzinfo=UTC)
+    return database_now() if now is None else now
 
 
 def preference(printer: PrinterFacts) -> tuple[float, datetime, str]:

@@ -99,11 +99,8 @@ def _card(sim: Simulator, *, stop: bool, args: list[str]) -> str:
 def _action(sim: Simulator, rest: list[str], now: float) -> str:
     """`action pause`: the firmware prints `//action:pause` (host action commands)."""
     text = _one_line("action takes the text after //action:, e.g. `action pause`", rest)
-    printer = getattr(sim.firmware, "host_action", None)
-    if printer is None:
-        raise ValueError("action: only a Marlin firmware sends host action commands")
-    printer(text)
-    return "ok"
+    refusal = "action: only a Marlin firmware sends host action commands"
+    return _firmware_says(sim, f"//action:{text}", refusal)
 
 
 def _say(sim: Simulator, rest: list[str]) -> str:
@@ -112,10 +109,16 @@ def _say(sim: Simulator, rest: list[str]) -> str:
     text = _one_line(
         "say takes the line to print, e.g. `say Error: heater fault`", rest
     )
+    refusal = "say: only a Marlin firmware prints lines of its own here"
+    return _firmware_says(sim, text, refusal)
+
+
+def _firmware_says(sim: Simulator, line: str, refusal: str) -> str:
+    """The firmware prints *line*; ValueError(*refusal*) for one that cannot."""
     say = getattr(sim.firmware, "say", None)
     if say is None:
-        raise ValueError("say: only a Marlin firmware prints lines of its own here")
-    say(text)
+        raise ValueError(refusal)
+    say(line)
     return "ok"
 
 

@@ -225,12 +225,9 @@ class MarlinFirmware(LineInput):
         return True
 
     def say(self, text: str) -> None:
-        """Print *text* as a line of the firmware's own (an error, a notice)."""
+        """Print *text* as a line of the firmware's own (an error, a notice, a
+        `//action:` as an LCD menu or a macro makes it)."""
         self._print(text)
-
-    def host_action(self, text: str) -> None:
-        """Print `//action:<text>` (as a LCD menu or a macro would make it)."""
-        self._print(f"//action:{text}")
 
     # -- executing commands ----------------------------------------------------------
 

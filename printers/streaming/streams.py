@@ -63,9 +63,7 @@ class StreamType(enum.Enum):
     @property
     def is_file(self) -> bool:
         """Its lines come from a stored file (not a client's own commands)."""
-        return self in (
-            StreamType.FS_FILE_STREAM,
-            StreamType.SD_FILE_STREAM,
+        return self.is_stream or self in (
             StreamType.FS_FILE_SCRIPT,
             StreamType.SD_FILE_SCRIPT,
         )

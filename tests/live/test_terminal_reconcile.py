@@ -30,6 +30,10 @@ def fresh_layer() -> Iterator[None]:
     channel_layers.backends.clear()
 
 
+def revoke_keys() -> None:
+    ApiKey.objects.update(revoked_at=timezone.now())
+
+
 async def open_session(
     printer: Printer, key: str
 ) -> tuple[asyncio.Server, asyncio.StreamReader, asyncio.StreamWriter, bytes]:
@@ -109,12 +113,9 @@ def test_a_terminal_session_ends_when_its_key_is_revoked(
     printer, key = watched
     monkeypatch.setattr(live, "RECONCILE_SECONDS", 0.2)
 
-    def revoke() -> None:
-        ApiKey.objects.update(revoked_at=timezone.now())
-
     async def scenario() -> tuple[bytes, bytes]:
         server, reader, writer, _ = await open_session(printer, key)
-        await database_sync_to_async(revoke)()
+        await database_sync_to_async(revoke_keys)()
         said = await asyncio.wait_for(reader.readline(), 10)
         end = await asyncio.wait_for(reader.read(), 10)
         writer.close()
@@ -139,12 +140,9 @@ def test_a_command_after_the_key_was_revoked_is_refused_and_ends_the_session(
     key = issue_key(user, "terminal")[1]
     monkeypatch.setattr(live, "RECONCILE_SECONDS", 3600)
 
-    def revoke() -> None:
-        ApiKey.objects.update(revoked_at=timezone.now())
-
     async def scenario() -> tuple[bytes, bytes]:
         server, reader, writer, _ = await open_session(printer, key)
-        await database_sync_to_async(revoke)()
+        await database_sync_to_async(revoke_keys)()
         writer.write(b"M117 after the revocation\n")
         said = await asyncio.wait_for(reader.readline(), 10)
         end = await asyncio.wait_for(reader.read(), 10)

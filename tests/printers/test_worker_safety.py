@@ -20,6 +20,13 @@ def job_state(job: Job) -> Job:
     return Job.objects.get(pk=job.pk)
 
 
+def wait_until_failed(worker: PrinterWorker, job: Job) -> None:
+    wait_for(
+        lambda: job_state(job).state == "failed", 10, "the job to fail",
+        step=worker.tick,
+    )  # fmt: skip
+
+
 def start_worker(printer: Printer) -> PrinterWorker:
     worker = PrinterWorker(printer)
     worker.start()
@@ -251,10 +258,7 @@ def test_a_heater_fault_worded_with_a_degree_sign_stops_the_job(
     try:
         wait_for(lambda: len(job_lines(sim)) > 20, 30, "motion", step=worker.tick)
         assert sim.control(f"say {fault}") == "ok"
-        wait_for(
-            lambda: job_state(job).state == "failed", 10, "the job to fail",
-            step=worker.tick,
-        )  # fmt: skip
+        wait_until_failed(worker, job)
     finally:
         worker.stop()
     assert "Heater 1 fault" in job_state(job).message
@@ -327,10 +331,7 @@ def test_a_firmware_error_while_a_resend_waits_sends_nothing_more_of_the_job(
     worker = start_worker(printer)
     worker.pacer.byte_time = 0.0  # answered at once: nothing to pace
     try:
-        wait_for(
-            lambda: job_state(job).state == "failed", 10, "the job to fail",
-            step=worker.tick,
-        )  # fmt: skip
+        wait_until_failed(worker, job)
         # Turns for as long as a drain before the resend takes (R1), and more.
         until = time.monotonic() + 1.0
         while time.monotonic() < until:
@@ -387,10 +388,7 @@ def test_a_grbl_start_script_refused_stops_the_job_before_its_first_line(
     job = make_job(printer, text)
     worker = start_worker(printer)
     try:
-        wait_for(
-            lambda: job_state(job).state == "failed", 10, "the job to fail",
-            step=worker.tick,
-        )  # fmt: skip
+        wait_until_failed(worker, job)
     finally:
         worker.stop()
     assert "start script failed" in job_state(job).message

@@ -271,3 +271,29 @@ def test_ok_with_temperatures_reports_them() -> None:
 
 def test_power_and_wait_fields_are_not_sensors() -> None:
     assert parse_temperatures("T:1 /2 @:127 B@:64 W:3") == {"T0": (1.0, 2.0)}
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        # RepRapFirmware sends its degree sign in UTF-8; the simulator's latin-1.
+        b"Error: Heater 1 fault: temperature rising much more slowly than the "
+        b"expected 1.5\xc2\xb0C/sec",
+        b"Error: Heater 1 fault: temperature excursion exceeded 15.0\xb0C",
+    ],
+)
+def test_a_readable_error_with_a_degree_sign_is_the_firmwares_not_noise(
+    raw: bytes,
+) -> None:
+    """Decoded as the protocol decodes a line: one stray symbol in a readable
+    message is a firmware error (the job stops), not a garbled line error."""
+    text = raw.decode("utf-8", errors="replace").strip()
+    reply = parse_response(text)
+    assert reply.kind is ReplyKind.ERROR
+    assert isinstance(reply.event, FirmwareError)
+    assert "Heater 1 fault" in reply.event.message
+
+
+def test_an_error_line_mostly_noise_is_still_a_line_error() -> None:
+    text = b"Error:\x93\x01\xfe\x81x".decode("utf-8", errors="replace")
+    assert parse_response(text).kind is ReplyKind.CHECKSUM_ERROR
