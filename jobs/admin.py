@@ -105,6 +105,7 @@ class JobAdmin(admin.ModelAdmin):
             start_line=0,
             start_offset=0,
             preamble="",
+            start_objects={},
         )
         messages.info(request, f"{count} job(s) queued again")
 

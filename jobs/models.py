@@ -173,6 +173,9 @@ class Job(models.Model):
     )
     #: Objects (the analysis' names) the operator cancelled: their lines are skipped.
     cancelled_objects = models.JSONField(default=list, blank=True)
+    #: A resume: the object streaming at `start_line` and the `M486 S` numbers the
+    #: file named before it (`ObjectFilter.place`, from the plan).
+    start_objects = models.JSONField(default=dict, blank=True)
     file_removed_at = models.DateTimeField(
         null=True,
         blank=True,

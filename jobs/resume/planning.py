@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import re
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from django.db import transaction
 from django.db.models import Min
@@ -34,7 +34,8 @@ from jobs.resume.state import MachineState, StateReader
 from printers import broadcast
 from printers.models import QueuedCommand
 from printers.reaper import LAST_SAVED
-from printers.worker.spool import next_position
+from printers.streaming.object_places import place_at
+from printers.worker.spool import file_entries, next_position
 
 if TYPE_CHECKING:
     from django.contrib.auth.models import AbstractBaseUser
@@ -185,6 +186,7 @@ def make_plan(pk: int) -> str:
     job = plan.job
     try:
         point, offset = read_point(job, plan.line)
+        objects = objects_at(job, plan.line)
     except (BadGcode, OSError, PathRefused) as error:
         ResumePlan.objects.filter(pk=pk).update(
             state=ResumePlan.State.FAILED, reason=f"the file cannot be read: {error}"
@@ -192,6 +194,8 @@ def make_plan(pk: int) -> str:
         return "failed"
     machine = point.state.as_dict()
     machine.update(start_offset=offset, stop_z=point.stop_z, warnings=point.warnings)
+    if objects is not None:
+        machine["objects"] = objects
     ResumePlan.objects.filter(pk=pk, state=ResumePlan.State.PENDING).update(
         state=ResumePlan.State.READY,
         preamble="\n".join(build_preamble(point)),
@@ -246,6 +250,15 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
     return point, start
 
 
+def objects_at(job: Job, line: int) -> dict[str, Any] | None:
+    """Which object streams at *line* and the `M486 S` numbers named before it,
+    for the resumed run's object filter (rule O10 in printers/streaming/objects.py);
+    None for a file without objects."""
+    if not job.objects_list():
+        return None
+    return place_at(file_entries(job.path, start_index=0, start_offset=0), line)
+
+
 #: A command the firmware's planner holds (G0 to G3).
 _MOVE = re.compile(r"\s*[Gg]0*[0-3](?![\d.])")
 
@@ -289,6 +302,7 @@ def start_plan(
             start_offset=int(locked.machine.get("start_offset", 0)),
             preamble=locked.preamble,
             cancelled_objects=job.cancelled_objects,
+            start_objects=locked.machine.get("objects") or {},
             lines_acked=locked.line,
             lines_sent=locked.line,
             bytes_acked=int(locked.machine.get("start_offset", 0)),

@@ -41,20 +41,25 @@ O8. Lines added by the filter carry the index and file offset of the file's line
     yielded, and count as done once a later line is acknowledged (`Stream.done`).
 O9. A cancel takes effect at the next line the filter reads: lines already read
     (sent, in flight, in the firmware's buffer) run as they are.
+O10. A run resumed mid-file starts where the file's own lines left the filter
+    (`place()`, kept with the resumed job): inside the object whose part was
+    streaming, knowing the `M486 S` numbers named before the start line. Else the
+    rest of a cancelled object's part, and every later part that `M486 S<n>`
+    alone starts, would be printed again.
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from printers.streaming.streams import Line
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Iterator
+    from collections.abc import Iterable, Iterator, Mapping
 
-__all__ = ["ObjectFilter", "ObjectMark", "object_mark", "object_ranges"]
+__all__ = ["ObjectFilter", "ObjectMark", "object_mark"]
 
 #: Longest object name kept (the analysis cuts at the same length).
 MAX_NAME = 200
@@ -98,27 +103,6 @@ def object_mark(raw: bytes) -> ObjectMark | None:
     return ObjectMark(_name(found.group(1)))
 
 
-def object_ranges(
-    entries: Iterable[Line | ObjectMark], *, limit: int = 100_000
-) -> dict[str, list[list[int]]]:
-    """Each object's commands as [first, end) index ranges (for the preview), at
-    most *limit* ranges in all."""
-    ranges: dict[str, list[list[int]]] = {}
-    objects = ObjectFilter(entries)
-    count = 0
-    for line in objects:
-        name = objects.active
-        if name is None or line.index < 0:
-            continue
-        spans = ranges.setdefault(name, [])
-        if spans and spans[-1][1] >= line.index:
-            spans[-1][1] = line.index + 1
-        elif count < limit:
-            spans.append([line.index, line.index + 1])
-            count += 1
-    return ranges
-
-
 def _name(text: str) -> str:
     return text.strip().strip("\"'").strip()[:MAX_NAME]
 
@@ -135,10 +119,16 @@ class ObjectFilter:
     Iterate it once (it is a stream's `lines`). `cancel(name)` may be called at any
     time between lines; `objects` lists the names seen so far, `m486_ids` the
     `M486 S` numbers of named objects (for firmware that cancels by itself).
+    *place*: where a file read from its start stood before the entries begin
+    (`place()`, O10), for a run resumed mid-file.
     """
 
     def __init__(
-        self, entries: Iterable[Line | ObjectMark], *, cancelled: Iterable[str] = ()
+        self,
+        entries: Iterable[Line | ObjectMark],
+        *,
+        cancelled: Iterable[str] = (),
+        place: Mapping[str, Any] | None = None,
     ) -> None:
         self._entries = entries
         self.cancelled: set[str] = set(cancelled)
@@ -164,6 +154,25 @@ class ObjectFilter:
         self._head_f: float | None = None
         self._skipped_any = False
         self._prev = Line(-1, "", 0)
+        if place:
+            self._take_place(place)
+
+    def place(self) -> dict[str, Any]:
+        """The object streaming and the names the file gave so far (O10), as JSON."""
+        return {
+            "active": self.active,
+            "objects": list(self.objects),
+            "m486": [[n, name] for n, name in self._m486_names.items()],
+            "m486_current": self._m486_current,
+        }
+
+    def _take_place(self, place: Mapping[str, Any]) -> None:
+        self.active = place.get("active")
+        self.objects = list(place.get("objects") or ())
+        for number, name in place.get("m486") or ():
+            self._m486_names[int(number)] = name
+            self.m486_ids.setdefault(name, int(number))
+        self._m486_current = int(place.get("m486_current", -1))
 
     # -- control -----------------------------------------------------------------
 

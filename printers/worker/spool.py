@@ -139,7 +139,9 @@ def stream_for(job: Job) -> Stream:
     # The stream reads through the object filter: the worker finds it there
     # (`stream.lines`) to cancel an object mid-print (printers/streaming/objects.py).
     objects = ObjectFilter(
-        itertools.chain(preamble, file), cancelled=job.cancelled_objects or ()
+        itertools.chain(preamble, file),
+        cancelled=job.cancelled_objects or (),
+        place=job.start_objects or None,
     )
     stream = Stream(
         StreamType.SD_FILE_STREAM,

@@ -32,7 +32,7 @@ from ninja.errors import HttpError
 
 from jobs.models import ACTIVE_STATES, Job
 from printers.models import QueuedCommand
-from printers.streaming.objects import object_ranges
+from printers.streaming.object_places import object_ranges
 from printers.worker.requests import CANCEL_OBJECT
 from printers.worker.spool import file_entries
 from printhost import audit

@@ -114,3 +114,15 @@ def file_segments(entries: list[Line | ObjectMark]) -> Machine:
         else:
             machine.run(entry.text)
     return machine
+
+
+def m486_labels(text: str) -> str:
+    """The slice as PrusaSlicer 2.6 labels for firmware: `M486 S<n>` and names."""
+    names = re.findall(r"^; printing object (\S+) id:(\d+) copy 0$", text, re.M)
+    names = dict((int(n), name) for name, n in names)
+    define = ["M486 T3"] + [f"M486 S{n}\nM486 A{name}" for n, name in names.items()]
+    text = text.replace("M82 ;", "\n".join([*define, "M486 S-1", "M82 ;"]), 1)
+    text = re.sub(
+        r"^; printing object \S+ id:(\d+) copy 0$", r"M486 S\1", text, flags=re.M
+    )
+    return re.sub(r"^; stop printing object .*$", "M486 S-1", text, flags=re.M)

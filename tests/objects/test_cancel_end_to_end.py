@@ -24,7 +24,13 @@ from printers.models import ResponseLine
 from printers.streaming import Line
 from printers.worker.loop import PrinterWorker
 from tests.conftest import job_lines, wait_for
-from tests.objects.gcode_model import Machine, Segment, entries_of, file_segments
+from tests.objects.gcode_model import (
+    Machine,
+    Segment,
+    entries_of,
+    file_segments,
+    m486_labels,
+)
 from tests.printers.stream_checks import sim_stats
 
 pytestmark = pytest.mark.slow
@@ -33,18 +39,6 @@ THREE = Path(__file__).parents[1] / "data" / "prusaslicer-2.5_three-boxes.gcode"
 B = "box-b.stl"
 #: What the filter adds (printers/streaming/objects.py rules O3, O5-O7).
 ADDED = re.compile(r"^(G92 E[-\d.]+|G1 F[\d.]+|G0 X[-\d.]+ Y[-\d.]+|G1 Z[-\d.]+)$")
-
-
-def m486_labels(text: str) -> str:
-    """The slice as PrusaSlicer 2.6 labels for firmware: `M486 S<n>` and names."""
-    names = re.findall(r"^; printing object (\S+) id:(\d+) copy 0$", text, re.M)
-    names = dict((int(n), name) for name, n in names)
-    define = ["M486 T3"] + [f"M486 S{n}\nM486 A{name}" for n, name in names.items()]
-    text = text.replace("M82 ;", "\n".join([*define, "M486 S-1", "M82 ;"]), 1)
-    text = re.sub(
-        r"^; printing object \S+ id:(\d+) copy 0$", r"M486 S\1", text, flags=re.M
-    )
-    return re.sub(r"^; stop printing object .*$", "M486 S-1", text, flags=re.M)
 
 
 def start(make_printer, sim, source: Path) -> tuple[PrinterWorker, Job]:
