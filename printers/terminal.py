@@ -13,10 +13,11 @@ Pronterface, another host) is a client. Protocol, one line at a time:
    and permissions as HTTP and websockets (operator role; a viewer gets `error: ...`);
    an `[ESPxxx]` command's reply goes to this client only.
 
-Limits: at most `PRINTHOST_TERMINAL_MAX_CLIENTS` connections per printer port and
-`PRINTHOST_TERMINAL_MAX_PER_ADDRESS` per client address (an excess connection gets
-one `error:` line and is closed); a client that gives no key line within
-`PRINTHOST_TERMINAL_LOGIN_SECONDS` is closed; a line over MAX_LINE bytes is refused
+Limits (printers/terminal_admission.py): at most `PRINTHOST_TERMINAL_MAX_CLIENTS`
+clients logged in per printer port and `PRINTHOST_TERMINAL_MAX_PER_ADDRESS`
+connections per client address (an excess connection gets one `error:` line and is
+closed); as many again may wait to log in, the oldest making way for a new one; a
+client that gives no key line within `PRINTHOST_TERMINAL_LOGIN_SECONDS` is closed; a line over MAX_LINE bytes is refused
 with an `error:` line and discarded up to its newline without being held (an
 endless line never grows memory); a command longer than the printer's firmware takes
 is refused. Printer output reaches clients with its control characters removed (tabs
@@ -31,7 +32,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from channels.db import database_sync_to_async
 from channels.layers import get_channel_layer
@@ -41,10 +42,14 @@ from printers import broadcast, live
 from printers.consumers import esp_reply
 from printers.driver import LinkConfig
 from printers.models import Printer
+from printers.terminal_admission import Admission
 from printers.terminal_text import MAX_LINE, LineReader, TooLong, printable
 from printhost.access import Caller, caller_from_key
 from printhost.clients import run_command
 from printhost.models import ApiKey, Role
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 logger = logging.getLogger("printhost.terminal")
 
@@ -64,8 +69,12 @@ class Session:
         printer: Printer,
         reader: asyncio.StreamReader,
         writer: asyncio.StreamWriter,
+        admit: Callable[[Session], str] = lambda session: "",
     ) -> None:
+        """*admit*: asked once the key is good, why the session may not stay
+        ("" when it may: `Admission.log_in`)."""
         self.printer = printer
+        self.admit = admit
         self.reader = reader
         self.writer = writer
         self.caller: Caller | None = None
@@ -119,12 +128,23 @@ class Session:
                 f"error: this key may not watch printer {self.printer.slug!r}"
             )
             return False
+        refusal = self.admit(self)
+        if refusal:
+            await self.say(f"error: {refusal}; try again later")
+            return False
         self.caller = caller
         role = await database_sync_to_async(caller.role)(self.printer)
         label = Role(role).name.lower() if role else "none"
         name = getattr(caller.user, "username", "")
         await self.say(f"// printhost: {self.printer.slug} as {name} ({label})")
         return True
+
+    def make_way(self) -> None:
+        """Close a connection still waiting for its key line (A3 in
+        printers/terminal_admission.py): its login ends at the end of file."""
+        with contextlib.suppress(Exception):
+            self.writer.write(b"error: too many connections waiting to log in\n")
+        self.writer.close()
 
     async def serve(self) -> None:
         """Output and input side by side until the client leaves."""
@@ -285,9 +305,10 @@ class TerminalServer:
     def __init__(self, bind: str | None = None) -> None:
         self.bind = bind or settings.PRINTHOST_TERMINAL_BIND
         self.servers: dict[str, tuple[int, asyncio.Server]] = {}
-        #: Connections now open, per printer slug and per client address.
-        self.per_printer: dict[str, int] = {}
-        self.per_address: dict[str, int] = {}
+        self.admission: Admission[Session] = Admission(
+            settings.PRINTHOST_TERMINAL_MAX_CLIENTS,
+            settings.PRINTHOST_TERMINAL_MAX_PER_ADDRESS,
+        )
 
     async def run(self, stop: asyncio.Event) -> None:
         try:
@@ -331,15 +352,8 @@ class TerminalServer:
     ) -> None:
         """Run a session for a new connection, or refuse it over a cap, saying why."""
         slug, address = printer.slug, peer_address(writer)
-        refusal = ""
-        most = settings.PRINTHOST_TERMINAL_MAX_CLIENTS
-        per_address = settings.PRINTHOST_TERMINAL_MAX_PER_ADDRESS
-        if self.per_printer.get(slug, 0) >= most:
-            refusal = f"too many terminal clients on printer {slug!r} (at most {most})"
-        elif self.per_address.get(address, 0) >= per_address:
-            refusal = (
-                f"too many terminal connections from {address} (at most {per_address})"
-            )
+        admission = self.admission
+        refusal = admission.refusal(slug, address)
         if refusal:
             logger.warning("terminal of %s refused %s: %s", slug, address, refusal)
             with contextlib.suppress(Exception):
@@ -349,15 +363,20 @@ class TerminalServer:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(writer.wait_closed(), 5)
             return
-        self.per_printer[slug] = self.per_printer.get(slug, 0) + 1
-        self.per_address[address] = self.per_address.get(address, 0) + 1
+        session = Session(
+            printer, reader, writer, admit=lambda s: admission.log_in(slug, s)
+        )
+        oldest = admission.arrive(slug, address, session)
+        if oldest is not None:
+            logger.warning(
+                "terminal of %s: %s waited too long to log in (%s connected)",
+                slug, oldest.address, address,
+            )  # fmt: skip
+            oldest.make_way()
         try:
-            await Session(printer, reader, writer).run()
+            await session.run()
         finally:
-            for counts, name in ((self.per_printer, slug), (self.per_address, address)):
-                counts[name] -= 1
-                if counts[name] <= 0:
-                    del counts[name]
+            admission.leave(slug, address, session)
 
     async def close(self, slug: str) -> None:
         _, server = self.servers.pop(slug)

@@ -156,6 +156,23 @@ def test_a_client_that_gives_no_key_in_time_is_closed(served: Served) -> None:
         client.close()
 
 
+def test_connections_that_never_log_in_cannot_keep_a_user_out(served: Served) -> None:
+    settled(served)
+    # As many silent connections as clients may log in, from two addresses (each
+    # under its own cap): the next connection, a user's, still gets in.
+    silent = [From(served.port, None, address)
+              for address in ("127.0.0.6", "127.0.0.6", "127.0.0.7")]  # fmt: skip
+    user = served.login("127.0.0.8")
+    try:
+        assert silent[0].readline() == "error: too many connections waiting to log in"
+        assert silent[0].readline() is None
+        user.send("M117 let in")
+        user.read_until("M117 let in")
+    finally:
+        for client in (*silent, user):
+            client.close()
+
+
 def test_over_long_lines_are_refused_and_the_session_goes_on(served: Served) -> None:
     client = served.login()
     try:
