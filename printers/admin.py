@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 from django.contrib import admin, messages
 
 from jobs.commands import emergency_stop, request_action
+from printers.heartbeat import HostRefused, release
 from printers.hosts import WorkerHost
 from printers.models import Printer, QueuedCommand, ResponseLine
 
@@ -212,6 +213,26 @@ class WorkerHostAdmin(admin.ModelAdmin):
         "metrics_address",
     ]
 
+    actions = ["release_hosts"]
+
     @admin.display(boolean=True)
     def online(self, host: WorkerHost) -> bool:
         return host.online
+
+    @admin.action(description="Release: their computers are gone for good")
+    def release_hosts(
+        self, request: HttpRequest, queryset: QuerySet[WorkerHost]
+    ) -> None:
+        caller = admin_caller(request)
+        if not request.user.is_superuser:
+            # Like moving a printer to another host (SUPERUSER_FIELDS).
+            messages.error(request, "only a superuser may release a worker host")
+            return
+        for host in queryset:
+            try:
+                release(host)
+            except HostRefused as error:
+                messages.error(request, str(error))
+                continue
+            record(caller, "worker_host.release", detail=host.name)
+            messages.info(request, f"released worker host {host.name}")

@@ -1,13 +1,26 @@
 """A worker host's claim on its name, and its heartbeat (`runhost --worker-host`).
 
 One runhost at a time may be a worker host: starting claims the `WorkerHost` row
-(its `instance`) with a conditional UPDATE, refused while another runhost holds
-the name and is alive: its heartbeat is fresh and it runs on another computer, or
-on this one with its process still there. Every `PRINTHOST_HEARTBEAT_SECONDS` the
-host writes its version, load and printers on condition that the row still names
-it; if another runhost took the name meanwhile, this one stops (two hosts must
-never run one printer's worker; the lease would stop the second from driving it,
-this stops the second from trying).
+(its `instance`, `hostname:pid:boot:random`) with a conditional UPDATE. Whether
+the runhost that held the name before may be taken over:
+
+H1  It ran on this computer since its last boot (same hostname and boot id): only
+    if its process is gone.
+H2  Its heartbeat is fresh, and H1 does not apply: never. A computer with the same
+    hostname but another boot id is another computer (a copy of the same system
+    image) as often as this one rebooted, and a reboot outlasts the heartbeat.
+H3  Its heartbeat is stale and it ran on a computer of this name: yes (this one,
+    rebooted).
+H4  Its heartbeat is stale and it ran on another computer: only once an operator
+    released the name (`manage.py worker_host release NAME`, or the admin), saying
+    that computer is gone for good. A host cut off from the database is stale here
+    and still drives its printers, whose ports are not this computer's.
+
+Every `PRINTHOST_HEARTBEAT_SECONDS` the host writes its version, load and printers
+on condition that the row still names it; if another runhost took the name
+meanwhile, or it was released, this one stops (two hosts must never run one
+printer's worker; the lease would stop the second from driving it, this stops
+the second from trying).
 """
 
 from __future__ import annotations
@@ -33,7 +46,15 @@ class HostRefused(Exception):
 
 
 def make_instance() -> str:
-    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
+    return f"{socket.gethostname()}:{os.getpid()}:{boot_id()}:{uuid.uuid4().hex[:6]}"
+
+
+def boot_id() -> str:
+    """This computer's boot, as Linux names it ("" where it does not)."""
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()[:8]
+    except OSError:
+        return ""
 
 
 def host_load() -> dict[str, Any]:
@@ -52,20 +73,34 @@ def host_load() -> dict[str, Any]:
     return load
 
 
-def _alive_elsewhere(instance: str) -> str:
-    """Why *instance* (hostname:pid:random) still counts as running, or ""."""
+def _still_holds(instance: str, *, online: bool) -> str:
+    """Why the runhost *instance* still holds its name (H1 to H4), or ""."""
     hostname, _, rest = instance.partition(":")
-    pid_text = rest.partition(":")[0]
-    if hostname != socket.gethostname():
+    parts = rest.split(":")
+    pid_text = parts[0]
+    # An instance written before boot ids were (hostname:pid:random) has none, nor
+    # one from a system without them: the pid alone says whether it runs here.
+    boot = (parts[1] or None) if len(parts) > 2 else None
+    here = hostname == socket.gethostname()
+    if here and boot in (boot_id() or None, None):
+        try:
+            pid = int(pid_text)
+            os.kill(pid, 0)
+        except (ValueError, ProcessLookupError):
+            return ""
+        except PermissionError:
+            pass
+        return f"runhost (pid {pid_text}) on this computer still runs it"
+    if online:
+        if here:
+            return (
+                f"it runs on a computer named {hostname} too (another computer, "
+                "or this one before it restarted)"
+            )
         return f"it runs on {hostname}"
-    try:
-        pid = int(pid_text)
-        os.kill(pid, 0)
-    except (ValueError, ProcessLookupError):
+    if here:
         return ""
-    except PermissionError:
-        pass
-    return f"runhost (pid {pid_text}) on this computer still runs it"
+    return f"it last ran on {hostname}, which may be cut off and still printing"
 
 
 class HostRegistration:
@@ -87,15 +122,21 @@ class HostRegistration:
         if not host.enabled:
             raise HostRefused(f"worker host {self.name} is disabled (see the admin)")
         held = host.instance and host.instance != self.instance
-        if held and host.online:
-            why = _alive_elsewhere(host.instance)
-            if why:
-                age = host.heartbeat_age() or 0.0
+        why = _still_holds(host.instance, online=host.online) if held else ""
+        if why:
+            age = host.heartbeat_age() or 0.0
+            if host.online:
                 raise HostRefused(
                     f"worker host {self.name} is already running ({why}, heartbeat "
                     f"{age:.0f} s ago): two hosts must not drive the same printers; "
-                    f"stop it, or wait {HEARTBEAT_STALE_SECONDS:.0f} s after it stopped"
+                    "stop it first (a clean stop gives the name back)"
                 )
+            raise HostRefused(
+                f"worker host {self.name}: {why} (heartbeat {age:.0f} s ago). If "
+                "that computer is gone for good and its printers are plugged in "
+                "here now, release the name on the control plane (manage.py "
+                f"worker_host release {self.name}, or the admin), then start again"
+            )
         now = timezone.now()
         won = WorkerHost.objects.filter(pk=host.pk, instance=host.instance).update(
             instance=self.instance,
@@ -127,6 +168,23 @@ class HostRegistration:
         WorkerHost.objects.filter(name=self.name, instance=self.instance).update(
             instance="", printers={}, seen_at=timezone.now() - _STALE
         )
+
+
+def release(host: WorkerHost) -> None:
+    """An operator says the computer that last ran *host* is gone for good (H4):
+    the next runhost of the name may start anywhere. HostRefused while its
+    heartbeat is fresh (it runs: stop it instead)."""
+    host.refresh_from_db()
+    if host.online:
+        age = host.heartbeat_age() or 0.0
+        raise HostRefused(
+            f"worker host {host.name} is running on {host.hostname or 'its computer'} "
+            f"(heartbeat {age:.0f} s ago): stop it instead; a clean stop gives the "
+            "name back"
+        )
+    WorkerHost.objects.filter(pk=host.pk, instance=host.instance).update(
+        instance="", printers={}
+    )
 
 
 _STALE = timedelta(seconds=HEARTBEAT_STALE_SECONDS)

@@ -292,8 +292,9 @@ def test_the_admin_queues_a_resumed_run_again_as_the_whole_file(
     goes back to the height the first run stopped at, in mid-air now."""
     job = make_job(make_printer(), "G28\nG1 X1\nG1 X2\n")
     Job.objects.filter(pk=job.pk).update(
-        state="failed", start_line=2, start_offset=10, preamble="G92 Z5.2"
-    )
+        state="failed", start_line=2, start_offset=10, preamble="G92 Z5.2",
+        start_objects={"active": "box"},
+    )  # fmt: skip
     admin = get_user_model().objects.create_superuser("root", password="x")
     client = Client()
     client.force_login(admin)
@@ -301,3 +302,4 @@ def test_the_admin_queues_a_resumed_run_again_as_the_whole_file(
     job.refresh_from_db()
     assert job.state == "queued" and not job.is_resume
     assert (job.start_line, job.start_offset, job.preamble) == (0, 0, "")
+    assert job.start_objects == {}

@@ -11,7 +11,7 @@ import pytest
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
-from printers.heartbeat import HostRefused, HostRegistration
+from printers.heartbeat import HostRefused, HostRegistration, boot_id
 from printers.hosts import WorkerHost
 from printers.supervisor import Supervisor
 
@@ -56,8 +56,10 @@ def test_a_second_runhost_with_the_same_name_is_refused_while_the_first_lives(sh
         HostRegistration("shelf-1").claim()
 
 
-def test_a_killed_runhost_on_this_computer_is_taken_over_at_once(shelf):
-    dead = f"{socket.gethostname()}:{_dead_pid()}:abcdef"
+@pytest.mark.parametrize("boot", [boot_id(), None], ids=["boot id", "older row"])
+def test_a_killed_runhost_on_this_computer_is_taken_over_at_once(shelf, boot):
+    here = [socket.gethostname(), str(_dead_pid())]
+    dead = ":".join([*here, boot, "abcdef"] if boot is not None else [*here, "abc"])
     old = HostRegistration("shelf-1", instance=dead)
     old.claim()
     new = HostRegistration("shelf-1")
@@ -65,16 +67,67 @@ def test_a_killed_runhost_on_this_computer_is_taken_over_at_once(shelf):
     assert not old.beat({})  # the old one, were it alive, learns it lost the name
 
 
-def test_a_stale_heartbeat_from_another_computer_is_taken_over(shelf):
+def _held_by(shelf: WorkerHost, instance: str, *, minutes_ago: float) -> None:
     from datetime import timedelta
 
     from django.utils import timezone
 
     WorkerHost.objects.filter(pk=shelf.pk).update(
-        instance="other-computer:1:abcdef",
-        seen_at=timezone.now() - timedelta(minutes=5),
+        instance=instance,
+        hostname=instance.partition(":")[0],
+        seen_at=timezone.now() - timedelta(minutes=minutes_ago),
     )
+
+
+def test_a_copy_of_this_computer_with_a_fresh_heartbeat_is_not_taken_over(shelf):
+    """The same hostname and a pid that is free here prove nothing on another
+    computer cloned from the same system image (another boot id)."""
+    clone = f"{socket.gethostname()}:{_dead_pid()}:0ther800t:abcdef"
+    _held_by(shelf, clone, minutes_ago=0)
+    with pytest.raises(HostRefused, match=r"already running.*named .* too"):
+        HostRegistration("shelf-1").claim()
+    _held_by(shelf, clone, minutes_ago=5)  # this computer before a restart
     assert HostRegistration("shelf-1").claim().hostname == socket.gethostname()
+
+
+def test_a_host_gone_quiet_on_another_computer_is_taken_over_only_once_released(
+    shelf,
+):
+    """Cut off from the database, it may still be printing: its printers' ports are
+    not this computer's. An operator says it is gone for good."""
+    _held_by(shelf, "other-computer:1:b00t1d00:abcdef", minutes_ago=5)
+    with pytest.raises(HostRefused, match=r"last ran on other-computer.*release"):
+        HostRegistration("shelf-1").claim()
+
+    call_command("worker_host", "release", "shelf-1")
+    assert HostRegistration("shelf-1").claim().hostname == socket.gethostname()
+
+
+def test_only_a_superuser_releases_a_host_in_the_admin(shelf):
+    from django.contrib.auth import get_user_model
+    from django.contrib.auth.models import Permission
+    from django.test import Client
+
+    _held_by(shelf, "other-computer:1:b00t1d00:abcdef", minutes_ago=5)
+    staff = get_user_model().objects.create_user("staff", password="x", is_staff=True)
+    staff.user_permissions.add(*Permission.objects.filter(codename__endswith="host"))
+    root = get_user_model().objects.create_superuser("root", password="x")
+    asked = {"action": "release_hosts", "_selected_action": [shelf.pk]}
+    for user, released in ((staff, False), (root, True)):
+        client = Client()
+        client.force_login(user)
+        answer = client.post("/admin/printers/workerhost/", asked, follow=True)
+        shown = [str(m) for m in answer.context["messages"]]
+        instance = WorkerHost.objects.get(pk=shelf.pk).instance
+        assert (instance == "") is released, shown
+    assert shown == ["released worker host shelf-1"]
+
+
+def test_a_running_host_cannot_be_released(shelf):
+    HostRegistration("shelf-1", instance="other-computer:1:b00t1d00:abc").claim()
+    with pytest.raises(CommandError, match=r"is running on .*stop it instead"):
+        call_command("worker_host", "release", "shelf-1")
+    assert WorkerHost.objects.get(pk=shelf.pk).instance.startswith("other-computer")
 
 
 def test_leaving_lets_the_next_runhost_start_at_once(shelf):

@@ -1,4 +1,4 @@
-"""`manage.py worker_host add|key|list|remove NAME`: the farm's worker hosts."""
+"""`manage.py worker_host add|key|list|release|remove NAME`: the farm's worker hosts."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from django.core.exceptions import ValidationError
 from django.core.management.base import BaseCommand, CommandError
 from django.db.models import ProtectedError
 
+from printers.heartbeat import HostRefused, release
 from printers.hosts import WorkerHost
 
 if TYPE_CHECKING:
@@ -17,7 +18,8 @@ if TYPE_CHECKING:
 class Command(BaseCommand):
     help = (
         "Add a worker host (its key is shown once), issue it a new key, list the "
-        "hosts with their heartbeat, or remove one that drives no printer."
+        "hosts with their heartbeat, release the name of one whose computer is gone "
+        "for good, or remove one that drives no printer."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
@@ -28,6 +30,11 @@ class Command(BaseCommand):
         key = actions.add_parser("key", help="a new key (the old one stops working)")
         key.add_argument("name")
         actions.add_parser("list", help="the hosts, their printers and heartbeat")
+        release = actions.add_parser(
+            "release",
+            help="its last computer is gone for good: the name may start elsewhere",
+        )
+        release.add_argument("name")
         remove = actions.add_parser("remove", help="remove a host with no printers")
         remove.add_argument("name")
 
@@ -54,6 +61,14 @@ class Command(BaseCommand):
             )
         if action == "key":
             self._show_key(host, host.issue_key())
+        elif action == "release":
+            try:
+                release(host)
+            except HostRefused as error:
+                raise CommandError(str(error)) from None
+            self.stdout.write(
+                f"released worker host {name}: its runhost may start on any computer"
+            )
         elif action == "remove":
             try:
                 host.delete()
