@@ -24,6 +24,7 @@ operator role on that printer.
 
 from __future__ import annotations
 
+from difflib import get_close_matches
 from typing import TYPE_CHECKING, Any
 
 from django.core.exceptions import ValidationError as ModelValidationError
@@ -76,6 +77,10 @@ UPLOAD_FIELDS = (
 )  # fmt: skip
 
 
+#: Fields of the slicers' dialects that read like a requirement's name, but are not.
+NOT_MISSPELT = frozenset({"file"})
+
+
 def is_farm(slug: str | None) -> bool:
     """The URL names the farm rather than one printer."""
     return slug == FARM_SLUG
@@ -90,13 +95,21 @@ def farm_caller(request: HttpRequest, role: int) -> Caller:
 
 def upload_values(request: HttpRequest) -> dict[str, Any]:
     """Requirement fields of an upload: query parameters, then form fields; `tags`
-    may repeat."""
+    may repeat. BadRequirement for a field that looks like a misspelt one
+    (`materal`, `Material`, `tag`): the job would wait for any printer instead."""
     values: dict[str, Any] = {}
     for source in (request.GET, request.POST if request.method == "POST" else {}):
-        for name in UPLOAD_FIELDS:
-            if name in source:
+        for name in source:
+            if name in UPLOAD_FIELDS:
                 items = source.getlist(name)  # type: ignore[union-attr]
                 values[name] = items if name == "tags" else items[-1]
+            elif name not in NOT_MISSPELT and (
+                near := get_close_matches(name.lower(), UPLOAD_FIELDS, 1, 0.7)
+            ):
+                raise BadRequirement(
+                    f"unknown field {name[:40]!r}: did you mean {near[0]!r}? (a farm "
+                    f"upload takes {', '.join(UPLOAD_FIELDS)})"
+                )
     return values
 
 
@@ -109,8 +122,8 @@ def store_farm_request(
     must be the file's (ChecksumMismatch: nothing stored, nothing audited).
     """
     caller = farm_caller(request, Role.OPERATOR)
-    values = upload_values(request)
     try:
+        values = upload_values(request)
         requirements = parse_requirements(values)
         priority = parse_priority(values.get("priority"))
         deadline = parse_deadline(values.get("deadline"))

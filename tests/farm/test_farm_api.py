@@ -127,6 +127,13 @@ def test_octoprint_and_moonraker_uploads_on_p_farm_join_the_queue(
         ("/printer/job/farm?a=upload", {"deadline": "9999-12-31T23:59:59-14:00"},
          400, "deadline must fall in the years 2000 to 2200"),
         ("/printer/job/farm?a=create&name=x.gcode", {}, 400, "the farm takes a=upload"),
+        # Else the job would wait for any printer, a PLA one for a PETG part.
+        ("/printer/job/farm?a=upload&materal=PETG", {}, 400,
+         "unknown field 'materal': did you mean 'material'?"),
+        ("/p/farm/server/files/upload", {"Material": "PETG"}, 400,
+         "unknown field 'Material': did you mean 'material'?"),
+        ("/p/farm/api/files/local", {"tag": "enclosed"}, 400,
+         "unknown field 'tag': did you mean 'tags'?"),
         ("/p/farm/server/files/upload", {"checksum": "0" * 64}, 422, "does not match"),
     ],
 )  # fmt: skip
