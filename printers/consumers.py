@@ -3,7 +3,8 @@
 Each connection is an ESP3D client with a context (a `Caller`): authenticated on
 connect (session cookie, or an API key as `?apikey=` / `?token=` / `X-Api-Key` /
 `Authorization: Bearer`), refused with close code 4401 (no or bad credentials), 4403
-(no viewer role, or a key bound to another printer) or 4404 (unknown printer).
+(no viewer role, or a key bound to another printer), 4404 (unknown printer) or 4429
+(the user has `PRINTHOST_WS_MAX_PER_USER` feeds open on this server already).
 
 Out: `hello` (state snapshot and the log's last id), `lines`, `state`,
 `temperatures`, `job`, `truncated`, `queued`, `reply`, `gone`, `error`. In: `{"cmd": ...}` and
@@ -32,7 +33,9 @@ from printers.handshake import (
     CLOSE_NOT_FOUND,
     Refused,
     caller_from_scope,
+    hold_place,
     int_param,
+    leave_place,
     query_of,
 )
 from printers.models import Printer
@@ -65,6 +68,8 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
 
     caller: Caller
     feeds: dict[int, Feed]
+    #: The place this feed holds among its user's (`hold_place`), once accepted.
+    place: int | None = None
 
     async def connect(self) -> None:
         self.feeds = {}
@@ -75,6 +80,7 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
             self.filter = int_param(query, "filter") or 0
             printers = await database_sync_to_async(self.identify)()
             starts = {p.pk: int_param(query, self.last_param(p)) for p in printers}
+            self.place = hold_place(self.caller)
         except Refused as refused:
             await self.send_json({"type": "error", "message": str(refused)})
             await self.close(code=refused.code)
@@ -114,6 +120,9 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         await self.receive_json(content)
 
     async def disconnect(self, code: int) -> None:
+        if self.place is not None:
+            leave_place(self.place)
+            self.place = None
         for task in list(getattr(self, "tasks", ())):
             task.cancel()
         for printer_id in list(getattr(self, "feeds", {})):

@@ -6,6 +6,7 @@ periodic re-check: a revoked key or an ended session closes the connection.
 
 from __future__ import annotations
 
+from collections import Counter
 from importlib import import_module
 from typing import Any
 from urllib.parse import parse_qs
@@ -20,11 +21,14 @@ from printhost.access import Caller, caller_from_key
 __all__ = [
     "CLOSE_FORBIDDEN",
     "CLOSE_NOT_FOUND",
+    "CLOSE_TOO_MANY",
     "CLOSE_UNAUTHENTICATED",
     "Refused",
     "caller_from_scope",
+    "hold_place",
     "int_param",
     "key_from_scope",
+    "leave_place",
     "query_of",
     "session_user",
 ]
@@ -33,6 +37,10 @@ __all__ = [
 CLOSE_UNAUTHENTICATED = 4401
 CLOSE_FORBIDDEN = 4403
 CLOSE_NOT_FOUND = 4404
+CLOSE_TOO_MANY = 4429
+
+#: Feeds open in this process, per user (`hold_place`): the event loop's only.
+_open: Counter[int] = Counter()
 
 
 class Refused(Exception):
@@ -113,3 +121,26 @@ def int_param(query: dict[str, str], name: str) -> int | None:
     if number < 0:
         raise Refused(4400, f"{name} must not be negative")
     return number
+
+
+def hold_place(caller: Caller) -> int:
+    """Count a feed of *caller*'s user in this process; Refused (4429) past
+    `PRINTHOST_WS_MAX_PER_USER`, which keeps one key or login from holding the
+    server's connections, memory and database reads. Returns what to hand back to
+    `leave_place`. Called on the event loop (the count is not locked)."""
+    user = caller.user.pk
+    most = settings.PRINTHOST_WS_MAX_PER_USER
+    if _open[user] >= most:
+        raise Refused(
+            CLOSE_TOO_MANY,
+            f"too many live feeds for this user on this server (at most {most}); "
+            "close some, or try again later",
+        )
+    _open[user] += 1
+    return user
+
+
+def leave_place(user: int) -> None:
+    _open[user] -= 1
+    if _open[user] <= 0:
+        del _open[user]

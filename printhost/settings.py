@@ -348,6 +348,9 @@ PRINTHOST_TERMINAL_MAX_CLIENTS = int(env_float("PRINTHOST_TERMINAL_MAX_CLIENTS",
 PRINTHOST_TERMINAL_MAX_PER_ADDRESS = int(
     env_float("PRINTHOST_TERMINAL_MAX_PER_ADDRESS", 4)
 )
+#: Live feeds (websockets) one user may have open at once on one server process;
+#: more are closed with 4429. Tablets, phones and dashboards need a handful each.
+PRINTHOST_WS_MAX_PER_USER = int(env_float("PRINTHOST_WS_MAX_PER_USER", 200))
 #: Seconds a terminal client has to send its key line before it is closed.
 PRINTHOST_TERMINAL_LOGIN_SECONDS = env_float("PRINTHOST_TERMINAL_LOGIN_SECONDS", 30.0)
 

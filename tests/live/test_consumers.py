@@ -546,3 +546,27 @@ def test_a_command_follows_the_printer_state_as_it_is_now_not_at_connect(
     refused, queued = run(scenario())
     assert refused["message"] == "Printer offline"
     assert queued["cmd"] == "G28"
+
+
+def test_a_user_past_the_feed_cap_is_refused_with_4429_until_one_closes(
+    printer: Printer, settings
+) -> None:
+    settings.PRINTHOST_WS_MAX_PER_USER = 2
+    key = user_key("viewer", Role.VIEWER)
+    other = user_key("other", Role.VIEWER)
+    path = f"/ws/printers/mk3/?apikey={key}"
+
+    async def scenario() -> None:
+        first, second = await connect(path), await connect(path)
+        error, code = await closed_with(path)
+        assert code == 4429 and "too many live feeds" in error["message"]
+        # Another user is counted apart; a closed feed gives its place back.
+        third = await connect(f"/ws/printers/mk3/?apikey={other}")
+        await until(third, "hello")
+        await first.disconnect()
+        again = await connect(path)
+        await until(again, "hello")
+        for client in (second, third, again):
+            await client.disconnect()
+
+    run(scenario())
