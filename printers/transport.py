@@ -99,10 +99,14 @@ class SerialTransport:
                 if not data:
                     raise TransportClosed(f"{self._port.port}: port closed")
                 return data
-            # No file descriptor (rfc2217://): wait for one byte, then take the rest.
+            # No file descriptor (rfc2217://): wait for one byte, then take the rest;
+            # *wake* is looked at after that short wait (an emergency stop written
+            # for the printer is not left to the next poll).
             self._port.timeout = max(0.001, min(timeout, 0.05))
             first = self._port.read(1)
             waiting = self._port.in_waiting if first else 0
+            if wake is not None:
+                self.woken = bool(select.select([wake], [], [], 0)[0])
             return first + (self._port.read(waiting) if waiting else b"")
         except (serial.SerialException, OSError) as error:
             raise TransportClosed(f"{self._port.port}: {error}") from None

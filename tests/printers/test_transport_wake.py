@@ -38,3 +38,25 @@ def test_data_from_the_printer_is_read_and_is_not_a_wake_up(link):
     os.write(master, b"ok\n")
     assert transport.read(30.0, wake=wake_r) == b"ok\n"
     assert not transport.woken
+
+
+def test_a_port_without_a_descriptor_still_sees_the_wake_descriptor(
+    settings, sim_factory
+):
+    """rfc2217:// has no descriptor to wait on: the wake descriptor is looked at
+    after the port's short wait, so PostgreSQL's notification of an emergency stop
+    does not wait for the next poll of the requests (a second while listening)."""
+    sim = sim_factory("marlin", "--tcp", "127.0.0.1:0")
+    settings.PRINTHOST_PORT_HOSTS = [sim.tcp]
+    transport = SerialTransport.open(f"rfc2217://{sim.tcp}", 115200)
+    wake_r, wake_w = os.pipe()
+    try:
+        assert transport.read(0.01, wake=wake_r) == b""
+        assert not transport.woken
+        os.write(wake_w, b"x")
+        transport.read(0.01, wake=wake_r)
+        assert transport.woken
+    finally:
+        transport.close()
+        os.close(wake_r)
+        os.close(wake_w)
