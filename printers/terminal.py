@@ -17,11 +17,12 @@ Limits (printers/terminal_admission.py): at most `PRINTHOST_TERMINAL_MAX_CLIENTS
 clients logged in per printer port and `PRINTHOST_TERMINAL_MAX_PER_ADDRESS`
 connections per client address (an excess connection gets one `error:` line and is
 closed); as many again may wait to log in, the oldest making way for a new one; a
-client that gives no key line within `PRINTHOST_TERMINAL_LOGIN_SECONDS` is closed; a line over MAX_LINE bytes is refused
-with an `error:` line and discarded up to its newline without being held (an
-endless line never grows memory); a command longer than the printer's firmware takes
-is refused. Printer output reaches clients with its control characters removed (tabs
-kept), so a printer's text cannot drive a user's terminal.
+client that gives no key line within `PRINTHOST_TERMINAL_LOGIN_SECONDS` is closed;
+a line over MAX_LINE bytes is refused with an `error:` line and discarded up to its
+newline without being held (an endless line never grows memory); a command longer
+than the printer's firmware takes is refused. Printer output reaches clients with
+its control characters removed (tabs kept), so a printer's text cannot drive a
+user's terminal.
 
 The feed is the same as the websockets': the printer's channel-layer group, fed by
 the worker (Redis) or by this process's relay (no Redis), gaps filled from the log.
@@ -369,8 +370,8 @@ class TerminalServer:
         oldest = admission.arrive(slug, address, session)
         if oldest is not None:
             logger.warning(
-                "terminal of %s: %s waited too long to log in (%s connected)",
-                slug, oldest.address, address,
+                "terminal of %s: let go of a connection from %s, still without a "
+                "key, for a new one from %s", slug, oldest.address, address,
             )  # fmt: skip
             oldest.make_way()
         try:
