@@ -197,19 +197,29 @@ class LiveConsumer(AsyncJsonWebsocketConsumer):
         """
         while True:
             await asyncio.sleep(live.RECONCILE_SECONDS)
-            if not await self.recheck():
-                return
-            for feed in list(self.feeds.values()):
-                # A feed that heard a batch since the last time needs no read: a
-                # lost batch before that one showed as a gap and was read then;
-                # one lost after it is read next time, unless a later batch shows
-                # its gap first. So a lost line still arrives within the period
-                # (or two), and a printing printer's hundred watchers cost no
-                # reads while its batches come.
-                if feed.heard:
-                    feed.heard = False
-                else:
-                    await self.catch_up(feed, None)
+            try:
+                if not await self.recheck():
+                    return
+                await self.reconcile_feeds()
+            except Exception as error:
+                # The database away or locked for a moment: the next period
+                # tries again. Ending here would leave the client without its
+                # lost lines, and its key or role without a check, for good.
+                logger.warning("live feed: reconcile failed, next in %s s: %r",
+                               live.RECONCILE_SECONDS, error)  # fmt: skip
+
+    async def reconcile_feeds(self) -> None:
+        for feed in list(self.feeds.values()):
+            # A feed that heard a batch since the last time needs no read: a
+            # lost batch before that one showed as a gap and was read then;
+            # one lost after it is read next time, unless a later batch shows
+            # its gap first. So a lost line still arrives within the period
+            # (or two), and a printing printer's hundred watchers cost no
+            # reads while its batches come.
+            if feed.heard:
+                feed.heard = False
+            else:
+                await self.catch_up(feed, None)
 
     async def recheck(self) -> bool:
         """Follow changes of keys and roles; False when the connection was closed.

@@ -570,3 +570,33 @@ def test_a_user_past_the_feed_cap_is_refused_with_4429_until_one_closes(
             await client.disconnect()
 
     run(scenario())
+
+
+@pytest.mark.usefixtures("quiet_feed")
+def test_a_failed_read_of_the_log_is_tried_again_the_next_period(
+    printer: Printer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The database locked or away for a moment: the client still gets the lines
+    whose batch was lost (and its key is still checked) once it answers."""
+    from django.db import OperationalError
+
+    key = user_key("viewer", Role.VIEWER)
+    read, failures = live.lines_after, [2]
+
+    def flaky(printer_id: int, last: int, upto: int | None = None) -> list:
+        if failures[0]:
+            failures[0] -= 1
+            raise OperationalError("database is locked")
+        return read(printer_id, last, upto)
+
+    async def scenario() -> list[int]:
+        client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
+        await until(client, "hello")
+        monkeypatch.setattr(live, "lines_after", flaky)
+        await database_sync_to_async(add_lines)(printer, 1, 3)
+        seen = await line_ids(client, 3)
+        await client.disconnect()
+        return seen
+
+    assert run(scenario()) == [1, 2, 3]
+    assert failures == [0]
