@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 from channels.db import database_sync_to_async
 from channels.layers import get_channel_layer
 from django.conf import settings
+from django.db import DatabaseError
 
 from printers import broadcast, live
 from printers.consumers import esp_reply
@@ -63,7 +64,8 @@ DRAIN_SECONDS = 30.0
 
 
 class Session:
-    """One connected terminal client of one printer."""
+    """One connected terminal client of one printer; *admit*, asked once its key is
+    good, says why it may not stay ("" when it may: `Admission.log_in`)."""
 
     def __init__(
         self,
@@ -72,8 +74,6 @@ class Session:
         writer: asyncio.StreamWriter,
         admit: Callable[[Session], str] = lambda session: "",
     ) -> None:
-        """*admit*: asked once the key is good, why the session may not stay
-        ("" when it may: `Admission.log_in`)."""
         self.printer = printer
         self.admit = admit
         self.reader = reader
@@ -141,8 +141,7 @@ class Session:
         return True
 
     def make_way(self) -> None:
-        """Close a connection still waiting for its key line (A3 in
-        printers/terminal_admission.py): its login ends at the end of file."""
+        """Close it while it waits for its key line (A3 in terminal_admission.py)."""
         with contextlib.suppress(Exception):
             self.writer.write(b"error: too many connections waiting to log in\n")
         self.writer.close()
@@ -189,20 +188,23 @@ class Session:
         """Now and then, write what the log holds past the cursor (a lost message),
         and end the session when its key was revoked or its role taken away.
 
-        While live batches come the read is skipped, as the websocket feed does
-        (printers/consumers.py): a lost batch shows as a gap in the next one, and
-        one lost after the last heard is read in the next period.
-        """
+        As the websocket feed does (printers/consumers.py): no read while live
+        batches come (a lost batch shows as a gap in the next one, one lost after
+        the last heard is read next period); a database error is tried again."""
         while True:
             await asyncio.sleep(live.RECONCILE_SECONDS)
-            reason = await database_sync_to_async(self.still_allowed)()
-            if reason:
-                await self.say(f"error: {reason}")
-                return
-            if self.heard:
-                self.heard = False
-            else:
-                await self.catch_up(None)
+            try:
+                reason = await database_sync_to_async(self.still_allowed)()
+                if reason:
+                    await self.say(f"error: {reason}")
+                    return
+                if self.heard:
+                    self.heard = False
+                else:
+                    await self.catch_up(None)
+            except DatabaseError as error:
+                logger.warning("terminal: reconcile failed, next in %s s: %r",
+                               live.RECONCILE_SECONDS, error)  # fmt: skip
 
     def still_allowed(self) -> str:
         """Why this session may no longer watch ("" while it may)."""

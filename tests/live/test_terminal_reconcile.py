@@ -203,3 +203,33 @@ def test_a_client_that_reads_nothing_is_disconnected(
         return ended.is_set()
 
     assert asyncio.run(asyncio.wait_for(scenario(), 60))
+
+
+@pytest.mark.usefixtures("quiet_feed")
+def test_a_failed_read_of_the_log_is_tried_again_and_the_session_goes_on(
+    watched: tuple[Printer, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from django.db import OperationalError
+
+    printer, key = watched
+    read, failures = live.lines_after, [2]
+
+    def flaky(printer_id: int, last: int, upto: int | None = None) -> list:
+        if failures[0]:
+            failures[0] -= 1
+            raise OperationalError("database is locked")
+        return read(printer_id, last, upto)
+
+    async def scenario() -> list[str]:
+        server, reader, writer, _ = await open_session(printer, key)
+        monkeypatch.setattr(live, "lines_after", flaky)
+        await database_sync_to_async(add_lines)(printer, 1, 2)
+        got = [
+            (await asyncio.wait_for(reader.readline(), 10)).decode() for _ in range(2)
+        ]
+        writer.close()
+        server.close()
+        return got
+
+    assert asyncio.run(asyncio.wait_for(scenario(), 30)) == ["echo 1\n", "echo 2\n"]
+    assert failures == [0]
