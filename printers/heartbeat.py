@@ -16,11 +16,13 @@ H4  Its heartbeat is stale and it ran on another computer: only once an operator
     that computer is gone for good. A host cut off from the database is stale here
     and still drives its printers, whose ports are not this computer's.
 
-Every `PRINTHOST_HEARTBEAT_SECONDS` the host writes its version, load and printers
-on condition that the row still names it; if another runhost took the name
-meanwhile, or it was released, this one stops (two hosts must never run one
-printer's worker; the lease would stop the second from driving it, this stops
-the second from trying).
+Heartbeats are written and judged by the database's clock (printers/dbclock.py), as
+leases are: a host whose own clock is off neither looks dead while it runs nor
+alive once it stopped. Every `PRINTHOST_HEARTBEAT_SECONDS` the host writes its
+version, load and printers on condition that the row still names it; if another
+runhost took the name meanwhile, or it was released, this one stops (two hosts
+must never run one printer's worker; the lease would stop the second from
+driving it, this stops the second from trying).
 """
 
 from __future__ import annotations
@@ -30,13 +32,13 @@ import os
 import shutil
 import socket
 import uuid
-from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 from django.conf import settings
-from django.utils import timezone
+from django.db.models.functions import Now
 
+from printers.dbclock import database_now, now_plus
 from printers.hosts import HEARTBEAT_STALE_SECONDS, WorkerHost
 from printhost import __version__
 
@@ -122,10 +124,12 @@ class HostRegistration:
         if not host.enabled:
             raise HostRefused(f"worker host {self.name} is disabled (see the admin)")
         held = host.instance and host.instance != self.instance
-        why = _still_holds(host.instance, online=host.online) if held else ""
+        now = database_now()
+        online = host.online_at(now)
+        why = _still_holds(host.instance, online=online) if held else ""
         if why:
-            age = host.heartbeat_age() or 0.0
-            if host.online:
+            age = host.heartbeat_age(now) or 0.0
+            if online:
                 raise HostRefused(
                     f"worker host {self.name} is already running ({why}, heartbeat "
                     f"{age:.0f} s ago): two hosts must not drive the same printers; "
@@ -137,13 +141,12 @@ class HostRegistration:
                 "here now, release the name on the control plane (manage.py "
                 f"worker_host release {self.name}, or the admin), then start again"
             )
-        now = timezone.now()
         won = WorkerHost.objects.filter(pk=host.pk, instance=host.instance).update(
             instance=self.instance,
             hostname=socket.gethostname(),
             version=__version__,
-            started_at=now,
-            seen_at=now,
+            started_at=Now(),
+            seen_at=Now(),
             load=host_load(),
             printers={},
         )
@@ -158,7 +161,7 @@ class HostRegistration:
         """Write the heartbeat; False if another runhost holds the name now."""
         return (
             WorkerHost.objects.filter(name=self.name, instance=self.instance).update(
-                seen_at=timezone.now(), load=host_load(), printers=printers
+                seen_at=Now(), load=host_load(), printers=printers
             )
             == 1
         )
@@ -166,7 +169,7 @@ class HostRegistration:
     def leave(self) -> None:
         """Give the name back (a clean stop): a restart need not wait."""
         WorkerHost.objects.filter(name=self.name, instance=self.instance).update(
-            instance="", printers={}, seen_at=timezone.now() - _STALE
+            instance="", printers={}, seen_at=now_plus(-HEARTBEAT_STALE_SECONDS)
         )
 
 
@@ -175,8 +178,9 @@ def release(host: WorkerHost) -> None:
     the next runhost of the name may start anywhere. HostRefused while its
     heartbeat is fresh (it runs: stop it instead)."""
     host.refresh_from_db()
-    if host.online:
-        age = host.heartbeat_age() or 0.0
+    now = database_now()
+    if host.online_at(now):
+        age = host.heartbeat_age(now) or 0.0
         raise HostRefused(
             f"worker host {host.name} is running on {host.hostname or 'its computer'} "
             f"(heartbeat {age:.0f} s ago): stop it instead; a clean stop gives the "
@@ -185,6 +189,3 @@ def release(host: WorkerHost) -> None:
     WorkerHost.objects.filter(pk=host.pk, instance=host.instance).update(
         instance="", printers={}
     )
-
-
-_STALE = timedelta(seconds=HEARTBEAT_STALE_SECONDS)

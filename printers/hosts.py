@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 from django.core.validators import RegexValidator
@@ -77,16 +77,20 @@ class WorkerHost(models.Model):
 
     @property
     def online(self) -> bool:
+        return self.online_at(timezone.now())
+
+    def online_at(self, now: datetime) -> bool:
+        """Heard within HEARTBEAT_STALE_SECONDS of *now* (the database's time, where
+        it decides who may run the host: heartbeats are written by that clock)."""
         if self.seen_at is None:
             return False
-        stale = timedelta(seconds=HEARTBEAT_STALE_SECONDS)
-        return timezone.now() - self.seen_at < stale
+        return now - self.seen_at < timedelta(seconds=HEARTBEAT_STALE_SECONDS)
 
-    def heartbeat_age(self) -> float | None:
+    def heartbeat_age(self, now: datetime | None = None) -> float | None:
         """Seconds since the last heartbeat (None: never seen)."""
         if self.seen_at is None:
             return None
-        return max(0.0, (timezone.now() - self.seen_at).total_seconds())
+        return max(0.0, ((now or timezone.now()) - self.seen_at).total_seconds())
 
     def as_dict(self) -> dict[str, Any]:
         return {

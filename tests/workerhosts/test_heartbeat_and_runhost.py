@@ -277,3 +277,28 @@ def test_behind_a_proxy_daphne_takes_the_clients_address_from_its_headers(db, se
     settings.SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https")
     proxied = Supervisor(bind="127.0.0.1", port=1, celery=False).wanted()["daphne"]
     assert proxied[-2:] == ["--proxy-headers", "printhost.asgi:application"]
+
+
+def test_heartbeats_are_written_and_judged_by_the_database_clock(shelf, monkeypatch):
+    """A board minutes off (no battery-backed clock, NTP not there yet) neither
+    looks stale while it runs nor lets an operator release it then."""
+    from datetime import timedelta
+
+    from django.utils import timezone
+
+    from printers.dbclock import database_now
+
+    right = timezone.now
+    off = lambda minutes: lambda: right() + timedelta(minutes=minutes)
+    monkeypatch.setattr(timezone, "now", off(-10))  # the host's clock is behind
+    host = HostRegistration("shelf-1", instance="other-computer:1:b00t1d00:abc")
+    host.claim()
+    assert host.beat({})
+    seen = WorkerHost.objects.get(pk=shelf.pk).seen_at
+    assert abs((seen - database_now()).total_seconds()) < 5
+
+    monkeypatch.setattr(timezone, "now", off(+10))  # the operator's clock is ahead
+    with pytest.raises(CommandError, match="is running on"):
+        call_command("worker_host", "release", "shelf-1")
+    with pytest.raises(HostRefused, match="already running"):
+        HostRegistration("shelf-1").claim()
