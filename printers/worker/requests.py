@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from functools import partial
 from typing import TYPE_CHECKING
@@ -10,8 +11,10 @@ from django.db import connections
 from django.db.models import Case, When
 from django.utils import timezone
 
+from jobs.commands import EMERGENCY_COMMANDS
 from jobs.models import Job
 from printers.models import QueuedCommand
+from printers.protocol.errors import CommandRejected
 from printers.streaming import Stream, StreamType, lines_from_text
 from printers.streaming.objects import ObjectFilter
 from printers.worker.emergency import after_m112
@@ -79,7 +82,13 @@ class RequestPoller(EspCommands):
             )
 
     def _handle_once(self, row: QueuedCommand, now: float) -> None:
-        """Act on a taken row; the database gone in the middle fails it, clearly."""
+        """Act on a taken row; the database gone in the middle fails it, clearly.
+
+        A row the protocol refuses is answered with why. Any other error is a
+        bug: the row is answered before the worker stops, so the next worker does
+        not meet it again (an emergency row is acted on before it is marked taken,
+        and would stop every worker after this one too).
+        """
         try:
             self._handle(row, now)
         except (DatabaseAway, *UNREACHABLE) as error:
@@ -88,6 +97,12 @@ class RequestPoller(EspCommands):
             self._finish(
                 row, "error: the database went away while this was handled; ask again"
             )
+        except CommandRejected as error:
+            self._finish(row, f"error: {error}")
+        except Exception as error:
+            with contextlib.suppress(Exception):
+                self._finish(row, f"error: the worker failed on this: {error!r}")
+            raise
 
     def fail_orphans(self, why: str) -> int:
         """Fail the printer's taken rows no stream of this worker holds; how many.
@@ -161,9 +176,14 @@ class RequestPoller(EspCommands):
         if worker.transport is None:
             self._finish(row, "error: printer offline")
             return
-        word = row.text.split()[0].upper()
+        # The command word alone goes out: nothing after it rides ahead of the
+        # queue, unnumbered (`M108 M29` would close a file being written).
+        word = row.text.split()[0].upper() if row.text.split() else ""
+        if word not in EMERGENCY_COMMANDS:
+            self._finish(row, f"error: {row.text[:20]!r} is not an emergency command")
+            return
         full_stop = word == "M112"
-        texts = _GRBL_EMERGENCY.get(word, []) if worker.printer.is_grbl else [row.text]
+        texts = _GRBL_EMERGENCY.get(word, []) if worker.printer.is_grbl else [word]
         if not texts:
             self._finish(row, f"error: {word} has no meaning on GRBL; use M112 or M410")
             return
@@ -181,7 +201,9 @@ class RequestPoller(EspCommands):
             who = f" by {row.origin}" if row.origin else ""
             path = after_m112(worker, who)
             worker.stop_streams(f"emergency stop{who}", outcome="aborted", note=True)
-        self._finish(row, f"ok: {path}" if path else "ok")
+        alone = "" if row.text.strip().upper() == word else f"{word} sent alone"
+        said = "; ".join(part for part in (alone, path) if part)
+        self._finish(row, f"ok: {said}" if said else "ok")
 
     def _action(self, action: str, origin: str) -> str:
         worker = self.worker

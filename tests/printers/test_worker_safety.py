@@ -417,3 +417,62 @@ def test_an_emergency_behind_hundreds_of_requests_goes_out_in_the_same_poll(
         assert QueuedCommand.objects.get(pk=stop.pk).state == "done"
     finally:
         worker.stop()
+
+
+def test_an_emergency_command_goes_out_alone_whatever_follows_it(
+    sim_factory, make_printer
+):
+    """`M108 \\rM500` or `M410\\x0bM502` is an emergency (its first word): the word
+    goes out ahead of everything, the rest never reaches the firmware, and the
+    worker goes on (it used to stop on the rest, and every worker after it, the
+    row still pending)."""
+    from jobs.commands import send_command
+    from printers.models import QueuedCommand
+
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.status.state == "idle", 10, "idle", worker.tick)
+        rows = [send_command(printer, text) for text in ("M108 \rM500", "M410\x0bM502")]
+        row = QueuedCommand.objects.create(
+            printer=printer, kind="emergency", text="G28"
+        )
+        done = lambda: not QueuedCommand.objects.filter(state="pending").exists()
+        wait_for(done, 10, "the rows answered", worker.tick)
+        wait_for(lambda: "M410" in sim.executed(), 5, "M410 in the record")
+    finally:
+        worker.stop()
+    replies = [QueuedCommand.objects.get(pk=r.pk).reply for r in (*rows, row)]
+    assert replies == [
+        "ok: M108 sent alone", "ok: M410 sent alone",
+        "error: 'G28' is not an emergency command",
+    ]  # fmt: skip
+    assert not {"M500", "M502", "G28"} & set(sim.executed())
+
+
+def test_a_request_the_worker_fails_on_is_answered_before_it_stops(
+    sim_factory, make_printer, monkeypatch
+):
+    """A bug met while acting on a request stops the worker (and says why), but
+    the request is answered first, so the next worker does not meet it again."""
+    from printers.models import QueuedCommand
+
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.status.state == "idle", 10, "idle", worker.tick)
+        monkeypatch.setattr(
+            worker.protocol, "send_emergency", lambda *a: 1 / 0, raising=False
+        )
+        row = emergency_stop(printer, origin="tester")
+        with pytest.raises(ZeroDivisionError):
+            wait_for(lambda: False, 10, "the worker to fail", worker.tick)
+    finally:
+        monkeypatch.undo()
+        worker.stop()
+    answered = QueuedCommand.objects.get(pk=row.pk)
+    assert (answered.state, answered.reply) == (
+        "failed", "error: the worker failed on this: ZeroDivisionError('division by zero')"
+    )  # fmt: skip
