@@ -72,14 +72,14 @@ class JobAdmin(admin.ModelAdmin):
             return _duration(analysis.summary.get("estimated_seconds"))
         return analysis.get_state_display()
 
-    @admin.action(description="Abort the running job")
+    @admin.action(description="Abort the running job", permissions=["change"])
     def abort(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         caller = admin_caller(request)
         for job in queryset.filter(state__in=ACTIVE_STATES):
             request_action(job.printer, "abort", origin=caller.origin)
             record(caller, "abort", printer=job.printer, job=job)
 
-    @admin.action(description="Queue again")
+    @admin.action(description="Queue again", permissions=["change"])
     def requeue(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         caller = admin_caller(request)
         gone = queryset.filter(file_removed_at__isnull=False).count()
@@ -109,7 +109,10 @@ class JobAdmin(admin.ModelAdmin):
         )
         messages.info(request, f"{count} job(s) queued again")
 
-    @admin.action(description="The bed is clear: their printers start the next job")
+    @admin.action(
+        description="The bed is clear: their printers start the next job",
+        permissions=["change"],
+    )
     def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         caller = admin_caller(request)
         printers = {job.printer for job in queryset.select_related("printer")}
@@ -119,7 +122,7 @@ class JobAdmin(admin.ModelAdmin):
             record(caller, "bed_clear", printer=printer)
         messages.info(request, f"asked {len(waiting)} waiting printer(s) to start")
 
-    @admin.action(description="Delete with their files")
+    @admin.action(description="Delete with their files", permissions=["delete"])
     def delete_with_files(self, request: HttpRequest, queryset: QuerySet[Job]) -> None:
         busy = queryset.filter(state__in=ACTIVE_STATES).count()
         caller = admin_caller(request)
@@ -174,7 +177,7 @@ class FileAnalysisAdmin(admin.ModelAdmin):
             return "-"
         return _duration(analysis.summary.get("estimated_seconds"))
 
-    @admin.action(description="Analyse again")
+    @admin.action(description="Analyse again", permissions=["change"])
     def analyse_again(
         self, request: HttpRequest, queryset: QuerySet[FileAnalysis]
     ) -> None:

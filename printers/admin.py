@@ -138,7 +138,9 @@ class PrinterAdmin(admin.ModelAdmin):
             fields += [name for name in SUPERUSER_FIELDS if name not in fields]
         return fields
 
-    @admin.action(description="The bed is clear: start the next job")
+    @admin.action(
+        description="The bed is clear: start the next job", permissions=["change"]
+    )
     def mark_bed_clear(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
         caller = admin_caller(request)
         for printer in queryset:
@@ -146,7 +148,7 @@ class PrinterAdmin(admin.ModelAdmin):
             record(caller, "bed_clear", printer=printer)
         messages.info(request, f"asked {queryset.count()} printer(s) to start")
 
-    @admin.action(description="EMERGENCY STOP")
+    @admin.action(description="EMERGENCY STOP", permissions=["change"])
     def stop_now(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
         caller = admin_caller(request)
         for printer in queryset:
@@ -156,7 +158,7 @@ class PrinterAdmin(admin.ModelAdmin):
             request, f"emergency stop sent to {queryset.count()} printer(s)"
         )
 
-    @admin.action(description="Reconnect")
+    @admin.action(description="Reconnect", permissions=["change"])
     def reconnect(self, request: HttpRequest, queryset: QuerySet[Printer]) -> None:
         caller = admin_caller(request)
         for printer in queryset:
@@ -219,7 +221,10 @@ class WorkerHostAdmin(admin.ModelAdmin):
     def online(self, host: WorkerHost) -> bool:
         return host.online
 
-    @admin.action(description="Release: their computers are gone for good")
+    @admin.action(
+        description="Release: their computers are gone for good",
+        permissions=["change"],
+    )
     def release_hosts(
         self, request: HttpRequest, queryset: QuerySet[WorkerHost]
     ) -> None:

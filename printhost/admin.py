@@ -89,7 +89,7 @@ class ApiKeyAdmin(admin.ModelAdmin):
             f"API key for {obj.user}: {raw}  (copy it now: it is not shown again)",
         )
 
-    @admin.action(description="Revoke the selected keys")
+    @admin.action(description="Revoke the selected keys", permissions=["change"])
     def revoke(self, request: HttpRequest, queryset: QuerySet[ApiKey]) -> None:
         count = queryset.filter(revoked_at__isnull=True).update(
             revoked_at=timezone.now()
@@ -123,7 +123,8 @@ class AppKeyRequestAdmin(admin.ModelAdmin):
 
     @admin.action(
         description="Approve: give the app an API key of mine (operator at most;"
-        " the account page lets you choose the printer and role)"
+        " the account page lets you choose the printer and role)",
+        permissions=["change"],
     )
     def approve(self, request: HttpRequest, queryset: QuerySet[AppKeyRequest]) -> None:
         for row in queryset.filter(state=AppKeyRequest.State.PENDING):
@@ -134,7 +135,7 @@ class AppKeyRequestAdmin(admin.ModelAdmin):
                 return
         messages.info(request, "approved; the app picks its key up at its next poll")
 
-    @admin.action(description="Deny")
+    @admin.action(description="Deny", permissions=["change"])
     def deny(self, request: HttpRequest, queryset: QuerySet[AppKeyRequest]) -> None:
         for row in queryset.filter(state=AppKeyRequest.State.PENDING):
             decide(row, request.user, grant=False)
