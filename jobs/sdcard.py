@@ -34,8 +34,10 @@ __all__ = [
 ]
 
 #: What a name on the card may hold: it goes on a command line (`M23 <name>`), so no
-#: blanks, no `;` (a comment) and no `*` (a checksum).
-_CARD_NAME = re.compile(r"^[A-Z0-9_~!#$%&'()@^`{}.\-/]{1,100}$")
+#: blanks, no `;` (a comment), no `*` (a checksum) and no brackets (a comment to the
+#: host's line cleaning and to Marlin's PAREN_COMMENTS: `M30 KEEP(1).GCO` would
+#: delete KEEP.GCO).
+_CARD_NAME = re.compile(r"^[A-Z0-9_~!#$%&'@^`{}.\-/]{1,100}$")
 
 
 class SdRefused(ValueError):
@@ -52,7 +54,7 @@ def card_name(name: str) -> str:
     if not _CARD_NAME.match(upper) or ".." in upper.split("/"):
         raise BadCardName(
             f"{name!r} is not a name on the printer's SD card (letters, digits and "
-            "_~!#$%&'()@^`{}.-/ only, no blanks, no '..')"
+            "_~!#$%&'@^`{}.-/ only, no blanks, no brackets, no '..')"
         )
     return upper
 

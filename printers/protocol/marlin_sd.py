@@ -227,7 +227,8 @@ def _parse(line: str) -> SdEvent | None:
     return None
 
 
-_NOT_IN_SHORT_NAMES = re.compile(r"[^A-Z0-9_~!#$%&'()@^`{}-]")
+#: Brackets are left out too: a name the host makes must be one it can send.
+_NOT_IN_SHORT_NAMES = re.compile(r"[^A-Z0-9_~!#$%&'@^`{}-]")
 
 
 def short_name(name: str, taken: set[str] | frozenset[str] = frozenset()) -> str:

@@ -21,6 +21,9 @@ if TYPE_CHECKING:
 
 __all__ = ["CardFiles", "SdCard"]
 
+#: What Marlin takes for M29 while it writes a file (queue.cpp's is_M29).
+_M29 = re.compile(r"M29(?![0-9])")
+
 #: Names a directory-backed card lists: 8.3, upper case (what Marlin's M28 writes).
 _SHORT = re.compile(
     r"^[A-Z0-9_~!#$%&'()@^`{}-]{1,8}(\.[A-Z0-9_~!#$%&'()@^`{}-]{1,3})?$"
@@ -121,11 +124,13 @@ class SdCard:
     def capture(self, text: str) -> bool:
         """While writing, *text* (a checked command) goes to the file; True if taken.
 
-        M29 ends the writing and is taken too (answered "Done saving file.").
+        M29 ends the writing and is taken too (answered "Done saving file."). As
+        Marlin's is_M29 does, "M29" anywhere in the line not followed by a digit
+        ends it: `M117 Copy M29 ok` closes the file, and the lines after it run.
         """
         if self.writing is None:
             return False
-        if text.split(maxsplit=1)[:1] == ["M29"]:
+        if _M29.search(text):
             self._m29("", 0.0)
             return True
         self.files.append(self.writing, text.encode("ascii", "replace") + b"\n")

@@ -23,6 +23,7 @@ lets nothing else through (an exclusive stream).
 from __future__ import annotations
 
 import itertools
+import re
 from typing import TYPE_CHECKING, Any
 
 from django.db.models import Min
@@ -50,7 +51,6 @@ from printers.streaming import (
     PrinterSide,
     Stream,
     StreamType,
-    lines_from_text,
 )
 
 if TYPE_CHECKING:
@@ -63,6 +63,17 @@ __all__ = ["SD_POLL_SECONDS", "SdCardWatch"]
 SD_POLL_SECONDS = 2
 #: The card's listing with long names where the firmware has them (others ignore L).
 LIST = "M20 L"
+#: Lines of a file not copied to the card (`upload_stream`).
+_NOT_COPIED = re.compile(r"^\s*(?:M28\b|\[ESP)|M29(?![0-9])", re.IGNORECASE)
+
+
+def _lines(commands: list[str]) -> list[Line]:
+    """Commands as they are: a card name is not cleaned of what looks like a comment."""
+    return [Line(index, text) for index, text in enumerate(commands)]
+
+
+def _same_file(a: str, b: str) -> bool:
+    return a.strip().upper().lstrip("/") == b.strip().upper().lstrip("/")
 #: Pause with M25 (every firmware), then abort with M524 (Marlin 2): an older firmware
 #: that does not know M524 still stops reading the file.
 _PRINT_CONTROLS = {"pause": "M25", "resume": "M24", "abort": "M25\nM524"}
@@ -99,7 +110,7 @@ class SdCardWatch:
         )
         return Stream(
             StreamType.SD_FILE_STREAM,
-            lines_from_text("\n".join(commands)),
+            _lines(commands),
             name=job.name,
             ref=job.pk,
             origin=job.origin,
@@ -109,14 +120,17 @@ class SdCardWatch:
     def upload_stream(self, job: Job) -> Stream:
         """`M28 <name>`, the stored file's commands (read lazily), `M29`.
 
-        A command M28 or M29 inside the file is left out: M29 would close the file
-        early and the printer would run the rest.
+        Left out of the copy: M28, and any line Marlin takes for M29 ("M29" anywhere
+        not followed by a digit, `M117 Copy M29 ok` too), which would close the
+        file early and make the printer run the rest; and `[ESPxxx]` lines, which
+        are printhost's to run, not the card's to keep (run during a copy, they
+        would act on the printer meanwhile).
         """
         name = job.sd_name
         body = (
             Line(c.index + 1, c.text, c.end_offset)
             for c in iter_commands(job.path)
-            if c.text.split(maxsplit=1)[0].upper() not in ("M28", "M29")
+            if not _NOT_COPIED.search(c.text)
         )
         lines = itertools.chain(
             [Line(0, f"M28 {name}")],
@@ -172,9 +186,10 @@ class SdCardWatch:
         if self.worker.transport is None:
             return "printer offline"
         stream, side = self._current()
-        if side is not None and side.file == name:
+        # Marlin reads a leading / as the card's root: /cube.gco is CUBE.GCO.
+        if side is not None and _same_file(side.file, name):
             return f"{name} is in use by job {stream.ref}; abort the job first"
-        lines = lines_from_text(f"M30 {name}\n{LIST}")
+        lines = _lines([f"M30 {name}", LIST])
         self.worker.host.submit(
             Stream(StreamType.MULTIPLE_COMMANDS, lines, name=f"delete {name}")
         )

@@ -272,3 +272,58 @@ def test_not_sd_printing_after_a_pause_was_asked_is_not_a_stop(make_printer):
     worker.sd.receive("Not SD printing")  # paused now: still no stop
     assert worker.host.requested == ""
     assert stream.outcome == ""
+
+
+def test_a_card_name_with_brackets_is_refused_not_cut_to_another_file():
+    """`M30 KEEP(1).GCO` would go out as `M30 KEEP.GCO`: brackets are a comment to
+    the host's line cleaning and to Marlin built with PAREN_COMMENTS."""
+    from jobs.sdcard import BadCardName, card_name
+
+    with pytest.raises(BadCardName, match="no brackets"):
+        card_name("KEEP(1).GCO")
+    assert card_name("/sub/keep_1.gco") == "/SUB/KEEP_1.GCO"
+
+
+def test_the_file_being_printed_cannot_be_deleted_under_another_spelling(
+    sim_factory, make_printer, tmp_path
+):
+    sd_dir = card_folder(tmp_path, CUBE_GCO=segments(400))
+    sim = sim_factory("marlin", "--time-scale", "1", "--sd-dir", str(sd_dir))
+    printer = make_printer(port=str(sim.link), **USER_DEFAULTS)
+    job = queue_sd_print(printer, "cube.gco")
+    worker = running(printer)
+    try:
+        wait_for(lambda: Job.objects.get(pk=job.pk).bytes_acked > 0, 30,
+                 "the print from the card", step=worker.tick)  # fmt: skip
+        refusals = [worker.sd.delete(name) for name in ("/cube.gco", " Cube.GCO")]
+    finally:
+        worker.stop()
+    assert refusals == [
+        f"{name} is in use by job {job.pk}; abort the job first"
+        for name in ("/cube.gco", " Cube.GCO")
+    ]
+    assert (sd_dir / "CUBE.GCO").exists()
+
+
+def test_a_copy_leaves_out_what_marlin_would_take_for_m29_and_esp_commands(
+    sim_factory, make_printer, tmp_path
+):
+    """Marlin ends a file being written at "M29" anywhere in a line (is_M29), and
+    runs the lines after it: M502 and M500 would reset and save the settings."""
+    sd_dir = card_folder(tmp_path)
+    sim = sim_factory("marlin", "--time-scale", "0", "--sd-dir", str(sd_dir))
+    printer = make_printer(port=str(sim.link), **USER_DEFAULTS)
+    text = (
+        "G1 X1\nM117 Copy M29 ok\nM502\nM500\n[ESP700]macro.gcode\nM290 Z0.1\n"
+        "M28 OTHER.GCO\nG1 X2\n"
+    )
+    upload = queue_sd_upload(printer, stored(printer, tmp_path, text, "copy.gcode"))
+    worker = running(printer)
+    try:
+        wait_for(lambda: state_of(upload) == "completed", 30, "the copy",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
+    written = (sd_dir / "COPY.GCO").read_text().splitlines()
+    assert written == ["G1 X1", "M502", "M500", "M290 Z0.1", "G1 X2"]
+    assert not {"M502", "M500"} & set(sim.executed()), "a line ran during the copy"

@@ -97,6 +97,7 @@ def test_progress_share_is_bounded():
         ("Grüße.g", set(), "GRUSSE.G"),
         ("...", set(), "FILE"),
         ("noext", set(), "NOEXT"),
+        ("cube (1).gcode", set(), "CUBE1.GCO"),  # a name the host can send
     ],
 )
 def test_short_names_fit_eight_dot_three_and_avoid_taken_names(name, taken, short):
