@@ -42,7 +42,7 @@ def api_params(form: dict[str, str]) -> dict[str, str]:
             params["before"] = (
                 date.fromisoformat(until) + timedelta(days=1)
             ).isoformat()
-        except ValueError:
+        except (ValueError, OverflowError):  # 9999-12-31 has no next day
             params["before"] = until  # refused with the API's own message
     return params
 

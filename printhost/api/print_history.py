@@ -54,6 +54,8 @@ router = Router(tags=["print history"])
 
 #: The most runs one list call returns.
 MAX_LIMIT = 1000
+#: The years a filter's time may name.
+FIRST_YEAR, LAST_YEAR = 1900, 2200
 #: The most runs one CSV export holds: narrow the period past that.
 MAX_CSV_ROWS = 100_000
 CSV_COLUMNS = (
@@ -80,6 +82,12 @@ def parse_moment(value: str | None, name: str) -> datetime | None:
                 f"{name} must be an ISO 8601 date or time (2026-11-24 or "
                 f"2026-11-24T08:30:00Z), not {value!r}",
             ) from None
+    if not FIRST_YEAR <= moment.year <= LAST_YEAR:
+        # Out there, the time in UTC the database compares falls off the calendar.
+        raise HttpError(
+            400, f"{name} must fall in the years {FIRST_YEAR} to {LAST_YEAR}, not "
+            f"{value!r}",
+        )  # fmt: skip
     if timezone.is_naive(moment):
         moment = timezone.make_aware(moment)
     return moment

@@ -181,6 +181,17 @@ def test_each_caller_reads_only_the_printers_it_may_view(farm, runs):
         ("?since=yesterday", 400, "since must be an ISO 8601 date"),
         ("?before=2026-13-40", 400, "before must be an ISO 8601 date"),
         ("?since=2026-11-02&before=2026-11-01", 400, "before must be later"),
+        # In UTC these fall off the calendar (OverflowError: a 500 before).
+        (
+            "?since=0001-01-01T00:00:00%2B05:00",
+            400,
+            "since must fall in the years 1900 to 2200",
+        ),
+        (
+            "/totals?before=9999-12-31T23:59:59-05:00",
+            400,
+            "before must fall in the years 1900 to 2200",
+        ),
         ("?limit=-1", 400, "limit must be 0 or more"),
         ("?limit=5000", 400, "limit must be at most 1000"),
         ("?offset=x", 400, "offset must be an integer"),

@@ -69,6 +69,12 @@ def test_a_bad_filter_shows_the_apis_reason(farm, runs):
     assert "since must be an ISO 8601 date" in html
 
 
+def test_the_last_day_of_the_calendar_is_refused_with_the_apis_reason(farm, runs):
+    html = page_of("root", farm, "?until=9999-12-31")
+
+    assert "before must fall in the years 1900 to 2200" in html
+
+
 def test_a_deleted_jobs_run_has_no_link_to_its_page(farm, runs):
     Job.objects.filter(pk=runs["resumed"].pk).delete()
 
