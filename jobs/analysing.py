@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import uuid
 from datetime import timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -133,6 +134,30 @@ def thumbnail_dir(sha256: str) -> Path:
     if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
         raise ValueError(f"{sha256!r} is not a SHA-256")
     return Path(settings.ANALYSIS_DIR) / sha256
+
+
+def object_ranges_of(sha256: str, path: Path) -> dict[str, list[list[int]]]:
+    """Each object's command ranges in the file *path* (its SHA-256 *sha256*),
+    for the preview: read once, then kept beside the file's thumbnails (the
+    analysis task reads them first; a job page opened before asks for them).
+
+    Reading a large file takes seconds: every viewer opening the job's page would
+    pay them again, and could be made to.
+    """
+    from printers.streaming.object_places import object_ranges
+    from printers.worker.spool import file_entries
+
+    kept = thumbnail_dir(sha256) / "object-ranges.json"
+    try:
+        return json.loads(kept.read_text())
+    except (OSError, ValueError):
+        pass
+    ranges = object_ranges(file_entries(path, start_index=0, start_offset=0))
+    kept.parent.mkdir(parents=True, exist_ok=True)
+    part = kept.with_name(f".object-ranges-{uuid.uuid4().hex}.part")
+    part.write_text(json.dumps(ranges))
+    part.replace(kept)
+    return ranges
 
 
 def toolpath_path(sha256: str, kind: str) -> Path:

@@ -25,7 +25,13 @@ from django.db import DatabaseError
 from django.db.models import F, Q
 from django.utils import timezone
 
-from jobs.analysing import stale_before, summary_of, thumbnail_dir, toolpath_path
+from jobs.analysing import (
+    object_ranges_of,
+    stale_before,
+    summary_of,
+    thumbnail_dir,
+    toolpath_path,
+)
 from jobs.analysis.analyser import Analyser
 from jobs.analysis.limits import Materials, MotionLimits, defaults_for
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode, metadata_of
@@ -104,6 +110,11 @@ def run(pk: int, *, worker: str | None = None) -> str:
         _finish(analysis, worker, failed=f"{type(error).__name__}: {error}")
         return "failed"
     found.thumbnails = save_thumbnails(analysis.sha256, pictures)
+    if found.objects:  # read now, not by the first viewer of the job's page
+        try:
+            object_ranges_of(analysis.sha256, path)
+        except Exception:  # the preview reads them itself then
+            logger.exception("analysis %s: object ranges of %s", pk, path.name)
     _finish(analysis, worker, result=found)
     return "done"
 

@@ -30,11 +30,10 @@ from django.http import HttpRequest, HttpResponse  # noqa: TC002 (ninja reads vi
 from ninja import Router
 from ninja.errors import HttpError
 
+from jobs.analysing import object_ranges_of
 from jobs.models import ACTIVE_STATES, Job
 from printers.models import QueuedCommand
-from printers.streaming.object_places import object_ranges
 from printers.worker.requests import CANCEL_OBJECT
-from printers.worker.spool import file_entries
 from printhost import audit
 from printhost.api.common import (
     caller_of,
@@ -83,7 +82,7 @@ def _ranges(job: Job) -> dict[str, list[list[int]]] | None:
     path = job.path
     if job.on_sd_card or not path.is_file() or job.size_bytes > RANGES_MAX_BYTES:
         return None
-    return object_ranges(file_entries(path, start_index=0, start_offset=0))
+    return object_ranges_of(job.sha256, path)
 
 
 @router.post("/printer/objects/{slug}", summary="Cancel one object of a running job")

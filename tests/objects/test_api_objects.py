@@ -92,3 +92,20 @@ def test_a_file_without_objects_is_refused(client, make_printer, tmp_path):
 def test_an_unknown_job_is_404(client, make_printer, tmp_path):
     make_job(make_printer, tmp_path)
     assert post(client, 999, "a")[0] == 404
+
+
+def test_object_ranges_are_read_from_the_file_once_by_the_analysis(
+    client, make_printer, tmp_path, monkeypatch
+):
+    """Reading a large file for them takes seconds: every viewer of the job's page
+    (or one asking again and again) would pay them."""
+    from printers.streaming import object_places
+
+    job = make_job(make_printer, tmp_path)
+    monkeypatch.setattr(object_places, "ObjectFilter", None)  # no second read
+    answer = client.get(f"/printer/objects/p?id={job.pk}&ranges=1")
+
+    assert answer.status_code == 200
+    assert answer.json()["data"]["ranges"] == {
+        "a": [[1, 2]], "b": [[2, 3]], "c": [[3, 4]],
+    }  # fmt: skip
