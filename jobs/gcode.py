@@ -26,6 +26,7 @@ import hashlib
 import re
 import unicodedata
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, TypeVar, cast
 
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode
@@ -40,6 +41,9 @@ if TYPE_CHECKING:
     from typing import Any, BinaryIO
 
 _CHUNK = 1 << 20
+#: The longest line a stored file may hold (bytes). G-code lines are short; the
+#: longest comments (a slicer's settings, a thumbnail's base64) are kilobytes.
+MAX_LINE_BYTES = 4 << 20
 
 
 class BadGcode(ValueError):
@@ -214,7 +218,11 @@ def file_lines(
             return
         handle.seek(start)
         offset = start
-        for raw in handle:
+        # Read a line at most MAX_LINE_BYTES at a time: `for raw in handle` holds a
+        # line of any length whole, and one line can be the whole upload.
+        for raw in iter(partial(handle.readline, MAX_LINE_BYTES + 1), b""):
+            if len(raw) > MAX_LINE_BYTES:
+                raise BadGcode(_too_long(name or path.name, offset))
             offset += len(raw)
             if digest is not None:
                 digest.update(raw)
@@ -229,6 +237,8 @@ def _bgcode_lines(
     for block in reader.blocks():
         if block.type != BlockType.GCODE:
             continue
+        if len(tail) > MAX_LINE_BYTES:  # else each block copies it again
+            raise BadBgcode(_too_long(name, reader.offset))
         text = tail + block.data
         span, total, done = block.end - block.start, max(1, len(text)), 0
         # Lines end at b"\n" only, as a text file's do when read line by line.
@@ -239,6 +249,13 @@ def _bgcode_lines(
             yield raw + b"\n", block.start + span * done // total
     if tail:
         yield tail, reader.offset
+
+
+def _too_long(name: str, offset: int) -> str:
+    return (
+        f"{name}: a line near byte {offset} is longer than {MAX_LINE_BYTES >> 20} "
+        "MB: not G-code"
+    )
 
 
 def inspect_file(

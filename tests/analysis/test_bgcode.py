@@ -284,3 +284,21 @@ def test_a_carriage_return_inside_a_line_splits_nothing_as_in_a_text_file(
     assert [raw for raw, _ in file_lines(binary)] == [
         raw for raw, _ in file_lines(plain)
     ]
+
+
+def test_a_line_without_end_is_refused_before_it_grows_past_4_mb(
+    tmp_path: Path,
+) -> None:
+    """A line that never ends was held whole, and a binary file's was copied again
+    with each block: a 512 KB upload took 16 s and 1.6 GB in the request."""
+    chunk = b";" + b"A" * (1 << 20)  # no newline: one line across every block
+    binary = tmp_path / "endless.bgcode"
+    binary.write_bytes(
+        HEADER + block(1, b"\0\0", b"G1 X1\n")
+        + b"".join(block(1, b"\0\0", chunk, compression=1) for _ in range(8))
+    )  # fmt: skip
+    text = tmp_path / "endless.gcode"
+    text.write_bytes(b"G1 X1\n" + chunk * 8 + b"\nG1 X2\n")
+    for path in (binary, text):
+        with pytest.raises(BadGcode, match="longer than 4 MB: not G-code"):
+            inspect_file(path, name="endless")
