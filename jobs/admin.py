@@ -187,8 +187,9 @@ class FileAnalysisAdmin(admin.ModelAdmin):
             )
         )
         FileAnalysis.objects.filter(pk__in=again).update(
-            state=FileAnalysis.State.PENDING, worker="", reason="", sent_at=None
-        )
+            state=FileAnalysis.State.PENDING, worker="", reason="", sent_at=None,
+            attempts=0,
+        )  # fmt: skip
         for pk in again:
             analysing.send(pk)
         messages.info(request, f"{len(again)} analysis(es) sent to the Celery worker")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import logging
 import os
 import socket
@@ -47,6 +48,11 @@ if TYPE_CHECKING:
 logger = logging.getLogger("printhost.analysis")
 
 _CHUNK = 1 << 20
+#: Characters of an analysis' notes kept (`FileAnalysis.reason`).
+MAX_REASON = 2000
+#: Times an analysis is started before it is failed: one that stopped that often
+#: without finishing (its worker killed, out of memory) would only stop again.
+MAX_ATTEMPTS = 3
 #: Seconds between heartbeats while a file is read.
 HEARTBEAT_SECONDS = 1.0
 #: Timeline marks kept at most per file (the stride grows for huge files).
@@ -88,6 +94,12 @@ def run(pk: int, *, worker: str | None = None) -> str:
     if not claim(pk, worker):
         return "skipped"
     analysis = FileAnalysis.objects.get(pk=pk)
+    if analysis.attempts > MAX_ATTEMPTS:
+        _finish(
+            analysis, worker, failed=f"started {analysis.attempts - 1} times without "
+            "finishing (its worker stopped: out of memory or killed?); not tried again",
+        )  # fmt: skip
+        return "failed"
     path = stored_file(analysis)
     if path is None:
         _finish(analysis, worker, failed="no stored file has this SHA-256 any more")
@@ -115,8 +127,7 @@ def run(pk: int, *, worker: str | None = None) -> str:
             object_ranges_of(analysis.sha256, path)
         except Exception:  # the preview reads them itself then
             logger.exception("analysis %s: object ranges of %s", pk, path.name)
-    _finish(analysis, worker, result=found)
-    return "done"
+    return _finish(analysis, worker, result=found)
 
 
 def _release(pk: int, worker: str) -> None:
@@ -256,17 +267,30 @@ def _finish(
     *,
     result: Analysis | None = None,
     failed: str = "",
-) -> None:
+) -> str:
+    """Store the outcome: "done", or "failed" (*failed* says why, or the result
+    cannot be stored)."""
     now = timezone.now()
     changes: dict[str, Any] = {"finished_at": now, "heartbeat_at": now}
-    if result is None:
+    found = summary = None
+    if result is not None:
+        found, summary = result.as_dict(), summary_of(result)
+        try:  # what the database's JSON takes: an inf or a NaN would fail the row
+            json.dumps([found, summary], allow_nan=False)
+        except ValueError:
+            failed = "the file holds a number too large to work with (inf or NaN)"
+            found = None
+    if found is None:
         changes.update(state=FileAnalysis.State.FAILED, reason=failed)
     else:
+        # The same note once each: a file can make the analyser say one thousands
+        # of times, and the reason goes out with every job of the file.
+        notes = "; ".join(dict.fromkeys(result.notes))  # type: ignore[union-attr]
         changes.update(
             state=FileAnalysis.State.DONE,
-            result=result.as_dict(),
-            summary=summary_of(result),
-            reason="; ".join(result.notes),
+            result=found,
+            summary=summary,
+            reason=notes[:MAX_REASON],
         )
     FileAnalysis.objects.filter(pk=analysis.pk, worker=worker).update(**changes)
     logger.info(
@@ -276,6 +300,7 @@ def _finish(
         changes["state"],
         changes["reason"],
     )
+    return "failed" if found is None else "done"
 
 
 def save_thumbnails(sha256: str, pictures: list[Thumbnail]) -> list[dict[str, Any]]:

@@ -243,3 +243,38 @@ def test_a_finished_analysis_is_read_once_per_process(
     again = fresh()
     with django_assert_num_queries(0):
         assert analysing.analysis_of(again) is first
+
+
+def test_a_number_too_large_to_store_fails_the_row_instead_of_retrying_for_ever(
+    printer: Printer, make_job: Callable
+) -> None:
+    """An inf or a NaN (a 400-digit coordinate, `estimated printing time = nan`)
+    is no JSON the database takes: the row stayed running and was analysed again
+    and again."""
+    job = make_job(printer, "; filament_diameter = 1e999\n" + SQUARE)
+    assert analysis_task.run(job.analysis_id) == "failed"
+    row = FileAnalysis.objects.get(pk=job.analysis_id)
+    assert (row.state, row.reason) == (
+        "failed", "the file holds a number too large to work with (inf or NaN)"
+    )  # fmt: skip
+
+
+def test_one_note_said_many_times_is_kept_once(
+    printer: Printer, make_job: Callable
+) -> None:
+    broken = "; thumbnail begin 16x16 8\n; !!!!\n; thumbnail end\n"
+    job = make_job(printer, broken * 50 + SQUARE)
+    assert analysis_task.run(job.analysis_id) == "done"
+    reason = FileAnalysis.objects.get(pk=job.analysis_id).reason
+    assert reason.count("broken base64") == 1
+
+
+def test_an_analysis_that_never_finishes_is_not_started_a_fourth_time(
+    printer: Printer, make_job: Callable
+) -> None:
+    """Its worker killed each time (out of memory): it would only stop again."""
+    job = make_job(printer, SQUARE)
+    FileAnalysis.objects.filter(pk=job.analysis_id).update(attempts=3)
+    assert analysis_task.run(job.analysis_id) == "failed"
+    reason = FileAnalysis.objects.get(pk=job.analysis_id).reason
+    assert reason.startswith("started 3 times without finishing")
