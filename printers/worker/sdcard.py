@@ -74,6 +74,8 @@ def _lines(commands: list[str]) -> list[Line]:
 
 def _same_file(a: str, b: str) -> bool:
     return a.strip().upper().lstrip("/") == b.strip().upper().lstrip("/")
+
+
 #: Pause with M25 (every firmware), then abort with M524 (Marlin 2): an older firmware
 #: that does not know M524 still stops reading the file.
 _PRINT_CONTROLS = {"pause": "M25", "resume": "M24", "abort": "M25\nM524"}
