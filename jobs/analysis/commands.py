@@ -31,6 +31,8 @@ _M486_NAME = re.compile(rb"\s*M486\s*A\s*(.+)$", re.I)
 _EXCLUDE = b"EXCLUDE_OBJECT_DEFINE "
 _AXES = "XYZE"
 _MAX_OBJECTS = 1000
+#: Tool numbers a file may use (T0 to T255); a higher one is not a tool.
+MAX_TOOLS = 256
 
 
 class Commands:
@@ -103,7 +105,7 @@ class Commands:
                 self._firmware_retract(retract=number == 10)
         elif letter == b"M":
             self._m_code(number, code, head.end())
-        elif letter == b"T":
+        elif letter == b"T" and number < MAX_TOOLS:  # else not a tool anyone has
             self._tool = number
             self._tools.setdefault(number, None)
 
@@ -267,8 +269,9 @@ class Commands:
                 self._speed_factor = words["S"] / 100.0
         elif number == 221:
             if "S" in words and words["S"] >= 0:
-                tool = int(words.get("T", self._tool))
-                self._flow[tool] = words["S"] / 100.0
+                tool = _tool(words, self._tool)
+                if tool is not None:
+                    self._flow[tool] = words["S"] / 100.0
         else:
             self.limits = with_setting(
                 self.limits, number, words, firmware=self.firmware
@@ -284,12 +287,22 @@ class Commands:
         if number == 116:
             self._wait(self.heaters.wait_all(now), heating=True)
             return
-        name = (
-            "bed" if number in (140, 190) else f"tool{int(words.get('T', self._tool))}"
-        )
+        tool = _tool(words, self._tool)
+        if number not in (140, 190) and tool is None:
+            return
+        name = "bed" if number in (140, 190) else f"tool{tool}"
         self.heaters.set_target(name, words.get("S", words.get("R")), now)
         if number in (109, 190) and ("S" in words or "R" in words):
             self._wait(self.heaters.wait(name, now, either="R" in words), heating=True)
+
+
+def _tool(words: dict[str, float], current: int) -> int | None:
+    """The tool a command's T names (the current one without T); None for a number
+    no machine has (each tool and heater is kept: T4000000000 would fill memory)."""
+    value = words.get("T", current)
+    if not 0 <= value < MAX_TOOLS:
+        return None
+    return int(value)
 
 
 def _without_parentheses(code: bytes) -> bytes:

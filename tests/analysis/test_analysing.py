@@ -278,3 +278,14 @@ def test_an_analysis_that_never_finishes_is_not_started_a_fourth_time(
     assert analysis_task.run(job.analysis_id) == "failed"
     reason = FileAnalysis.objects.get(pk=job.analysis_id).reason
     assert reason.startswith("started 3 times without finishing")
+
+
+def test_a_tool_number_no_machine_has_is_not_a_tool(
+    printer: Printer, make_job: Callable
+) -> None:
+    """Each tool gets its filament, flow and heater: T4000000000 filled memory."""
+    text = "T10000000\nM221 T20000000 S90\nM104 T30000000 S200\n" + SQUARE
+    job = make_job(printer, text)
+    assert analysis_task.run(job.analysis_id) == "done"
+    result = FileAnalysis.objects.get(pk=job.analysis_id).result
+    assert result["tools"] == [] and len(result["filament_mm"]) == 1
