@@ -22,8 +22,13 @@ _BEGIN = re.compile(
     r"^\s*thumbnail(?:_(PNG|JPG|QOI))?\s+begin\s+(\d+)\s*x\s*(\d+)", re.I
 )
 _END = re.compile(r"^\s*thumbnail(?:_(?:PNG|JPG|QOI))?\s+end\b", re.I)
-#: The most base64 one file may carry in thumbnails (a large PNG is ~100 KB).
+#: The most base64 one file may carry in thumbnails (a large PNG is ~100 KB); a QOI
+#: picture counts its pixels decoded, as it is turned into PNG here.
 MAX_BYTES = 8 * 1024 * 1024
+#: Pictures kept per file (slicers write one to four); a note each at most: every
+#: job of the file carries them.
+MAX_PICTURES = 16
+MAX_NOTES = 20
 _MAX_SIDE = 2048
 _PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -67,7 +72,7 @@ class ThumbnailReader:
                 self._length += len(part)
                 self._total += len(part)
                 if self._total > MAX_BYTES:
-                    self.notes.append("thumbnails larger than 8 MB in all were skipped")
+                    self._note("thumbnails larger than 8 MB in all were skipped")
                     self._kind, self._parts = "", []
                 else:
                     self._parts.append(part)
@@ -83,7 +88,7 @@ class ThumbnailReader:
     def finish(self) -> None:
         """End of file: a picture still open was cut off."""
         if self._kind:
-            self.notes.append(f"a {self._size[0]}x{self._size[1]} thumbnail has no end")
+            self._note(f"a {self._size[0]}x{self._size[1]} thumbnail has no end")
             self._kind, self._parts = "", []
 
     def _finish(self) -> None:
@@ -93,7 +98,7 @@ class ThumbnailReader:
         try:
             raw = base64.b64decode(text, validate=True)
         except (binascii.Error, ValueError):
-            self.notes.append(f"the {label} has broken base64 and was skipped")
+            self._note(f"the {label} has broken base64 and was skipped")
             return
         self._take(kind, raw, label)
 
@@ -101,15 +106,28 @@ class ThumbnailReader:
         """A picture from outside the comments (*kind* PNG, JPG or QOI), checked."""
         self._total += len(raw)
         if self._total > MAX_BYTES:
-            self.notes.append("thumbnails larger than 8 MB in all were skipped")
+            self._note("thumbnails larger than 8 MB in all were skipped")
             return
         self._take(kind, raw, f"{kind} thumbnail")
 
+    def _note(self, text: str) -> None:
+        if text not in self.notes and len(self.notes) < MAX_NOTES:
+            self.notes.append(text)
+
     def _take(self, kind: str, raw: bytes, label: str) -> None:
+        if len(self.pictures) >= MAX_PICTURES:
+            self._note(f"more than {MAX_PICTURES} thumbnails: the rest were skipped")
+            return
+        if kind == "QOI" and len(raw) >= 12:
+            width, height = struct.unpack(">II", raw[4:12])
+            self._total += width * height * 4
+            if self._total > MAX_BYTES:
+                self._note("thumbnails larger than 8 MB in all were skipped")
+                return
         try:
             self.pictures.append(picture(kind, raw))
         except BadPicture as error:
-            self.notes.append(f"the {label} was skipped: {error}")
+            self._note(f"the {label} was skipped: {error}")
 
 
 def picture(kind: str, raw: bytes) -> Thumbnail:

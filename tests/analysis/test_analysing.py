@@ -289,3 +289,13 @@ def test_a_tool_number_no_machine_has_is_not_a_tool(
     assert analysis_task.run(job.analysis_id) == "done"
     result = FileAnalysis.objects.get(pk=job.analysis_id).result
     assert result["tools"] == [] and len(result["filament_mm"]) == 1
+
+
+def test_at_most_sixteen_thumbnails_are_kept(printer: Printer, make_job: Callable):
+    """Each is listed in every job dict of the file: 500,000 tiny ones made 70 MB."""
+    pictures = "".join(png_block(size, size) for size in range(1, 31))
+    job = make_job(printer, pictures + SQUARE)
+    assert analysis_task.run(job.analysis_id) == "done"
+    row = FileAnalysis.objects.get(pk=job.analysis_id)
+    assert len(row.result["thumbnails"]) == 16
+    assert row.reason == "more than 16 thumbnails: the rest were skipped"
