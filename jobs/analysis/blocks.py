@@ -34,6 +34,8 @@ _BREAKS = {
 _LAYER_STEP = 1e-4
 #: Distinct comments remembered per file (`Analyser.known_comments`).
 _KNOWN_COMMENTS = 4096
+#: ...of at most this many bytes each (a file's comment can be megabytes long).
+_KNOWN_LENGTH = 256
 #: A remembered comment that starts no feature.
 _INERT = -1
 
@@ -73,7 +75,7 @@ def read_block(an: Analyser, data: bytes) -> None:
                 if thumbs.reading or reading_picture:
                     continue
                 feature = _INERT
-            if len(known) < _KNOWN_COMMENTS:
+            if len(known) < _KNOWN_COMMENTS and len(raw) <= _KNOWN_LENGTH:
                 known[raw] = feature
         if feature != _INERT:
             feature_lines.append(line)
