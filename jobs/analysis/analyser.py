@@ -177,6 +177,10 @@ class Analyser(Commands):
                 "points": self.toolpath.points,
                 "layers": self.toolpath.finish(starts, result.layers),
             }
+            if self.toolpath.full:
+                result.notes.append(
+                    "the preview draws the first 256 MB of the toolpath only"
+                )
             if self.cnc and self.toolpath.written:
                 # A CNC job has no layers: its preview is the whole toolpath at once.
                 result.toolpath["layers"] = [[0, self.toolpath.written]]

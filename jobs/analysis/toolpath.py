@@ -35,6 +35,10 @@ PASSES = 3
 #: Features beyond this many share the last index (a file naming hundreds of
 #: features is not a slicer's).
 MAX_FEATURES = 255
+#: The most bytes of toolpath one file gets (a large real print: tens of MB). Past
+#: it the preview shows what was written: a small compressed file that unpacks to
+#: gigabytes of moves must not fill the disk, nor one layer a viewer's request.
+MAX_BYTES = 256 << 20
 
 
 class ToolpathWriter:
@@ -46,6 +50,8 @@ class ToolpathWriter:
         self._feature_ids: dict[str, int] = {"": 0}
         self.written = 0
         self.points = 0
+        #: MAX_BYTES were written: the rest of the file is not drawn.
+        self.full = False
         # The last runs' first commands and byte offsets of their records, so a
         # layer that starts a little before the run that found it is still placed.
         self._recent: list[tuple[np.ndarray, np.ndarray]] = []
@@ -55,9 +61,10 @@ class ToolpathWriter:
         name = name.strip()[:40]
         known = self._feature_ids.get(name)
         if known is None:
-            known = min(len(self.features), MAX_FEATURES)
-            if known == len(self.features):
-                self.features.append(name)
+            if len(self.features) > MAX_FEATURES:
+                return MAX_FEATURES  # not remembered: names without end, one index
+            known = len(self.features)
+            self.features.append(name)
             self._feature_ids[name] = known
         return known
 
@@ -73,7 +80,10 @@ class ToolpathWriter:
         """Moves from *starts* to *ends* (x, y columns), each with its command, whether
         it extrudes or cuts, its speed (mm/s) and feature index."""
         count = len(tags)
-        if not count:
+        if not count or self.full:
+            return
+        if self.written >= MAX_BYTES:
+            self.full = True
             return
         from jobs.analysis import kernels  # numba: loaded by the first analysis only
 

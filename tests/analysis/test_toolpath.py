@@ -244,3 +244,37 @@ def test_a_cnc_jobs_preview_is_one_layer_in_the_api(
     layer = client.get(f"/printer/toolpath/cnc/{job.pk}/0")
     assert layer.status_code == 200
     assert any(r["drawn"] for r in records(layer.content))
+
+
+def test_the_toolpath_stops_at_its_cap_and_says_so(monkeypatch) -> None:
+    """A small compressed file can unpack to gigabytes of moves: the preview's file
+    (and a layer a viewer reads whole) must not follow it."""
+    from jobs.analysis import toolpath
+
+    run = "".join(f"G1 X{i % 2 * 50} Y{i} E1 F{1200 + i}\n" for i in range(1000))
+    text = ("G28\nM83\nG1 Z0.2\n" + run * 200).encode()
+
+    def drawn() -> tuple[object, bytes]:
+        """Fed a megabyte at a time, as the analysis task reads a file."""
+        sink = io.BytesIO()
+        analyser = Analyser(toolpath=sink)
+        for at in range(0, len(text), 1 << 20):
+            analyser.feed(text[at : at + (1 << 20)])
+        return analyser.finish(), sink.getvalue()
+
+    _, whole = drawn()
+    monkeypatch.setattr(toolpath, "MAX_BYTES", 4096)
+    result, data = drawn()
+    # What the first megabyte drew, and nothing after it.
+    assert 4096 <= len(data) <= len(whole) / 3, "drawn on past the cap"
+    assert "the preview draws the first 256 MB of the toolpath only" in result.notes
+
+
+def test_feature_names_past_the_cap_are_not_remembered() -> None:
+    from jobs.analysis.toolpath import MAX_FEATURES, ToolpathWriter
+
+    writer = ToolpathWriter(io.BytesIO())
+    indexes = [writer.feature(f"kind {n}") for n in range(MAX_FEATURES + 50)]
+    assert indexes[-51:] == [MAX_FEATURES] * 51
+    assert len(writer.features) == MAX_FEATURES + 1
+    assert len(writer._feature_ids) == MAX_FEATURES + 1
