@@ -24,7 +24,9 @@ import io
 from datetime import date, datetime, time
 from typing import TYPE_CHECKING
 
-from django.http import HttpRequest, HttpResponse
+from asgiref.sync import sync_to_async
+from django.http import HttpRequest, HttpResponse, StreamingHttpResponse
+from django.http.response import HttpResponseBase  # noqa: TC002 (ninja reads hints)
 from django.utils import timezone
 from ninja import Router
 from ninja.errors import HttpError
@@ -45,7 +47,7 @@ from printhost.api.common import caller_of, envelope, parse_int
 from printhost.models import Role
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Mapping
+    from collections.abc import AsyncIterator, Iterable, Iterator, Mapping
 
     from jobs.history import RunDict
     from printhost.access import Caller
@@ -140,7 +142,7 @@ def query_from(caller: Caller, params: Mapping[str, str]) -> HistoryQuery:
 
 
 @router.get("/printer/history", summary="Print history: every run of every job")
-def history_list(request: HttpRequest) -> HttpResponse:
+def history_list(request: HttpRequest) -> HttpResponseBase:
     """Runs (ended and running), filtered; `format=csv` exports them all."""
     query = query_of(request)
     shape = request.GET.get("format") or "json"
@@ -174,7 +176,9 @@ def history_totals(request: HttpRequest) -> HttpResponse:
     return envelope(found)
 
 
-def _csv(query: HistoryQuery) -> HttpResponse:
+def _csv(query: HistoryQuery) -> StreamingHttpResponse:
+    """The runs as CSV, written as they are read, a batch at a time: a whole
+    export held at once took 4 s and 200 MB a request, asked by any viewer."""
     count = ended(query).count() + len(running(query))
     if count > MAX_CSV_ROWS:
         raise HttpError(
@@ -182,16 +186,34 @@ def _csv(query: HistoryQuery) -> HttpResponse:
             f"{count} runs match, more than {MAX_CSV_ROWS} in one export: "
             "narrow the period (since, before) or the printer",
         )
-    out = io.StringIO()
-    writer = csv.writer(out)
-    writer.writerow(CSV_COLUMNS)
-    writer.writerows(_csv_row(run) for run in iter_runs(query))
+    batches = _csv_batches(query)
+    # Under ASGI a synchronous iterator is read whole before it is sent: the
+    # batches are pulled one by one from the thread the database reads run on.
+    take = sync_to_async(lambda: next(batches, None))
+
+    async def stream() -> AsyncIterator[bytes]:
+        while (batch := await take()) is not None:
+            yield batch
+
     stamp = timezone.localtime().strftime("%Y%m%d-%H%M")
-    response = HttpResponse(out.getvalue(), content_type="text/csv; charset=utf-8")
+    response = StreamingHttpResponse(stream(), content_type="text/csv; charset=utf-8")
     response["Content-Disposition"] = (
         f'attachment; filename="printhost-history-{stamp}.csv"'
     )
     return response
+
+
+def _csv_batches(query: HistoryQuery, rows: int = 500) -> Iterator[bytes]:
+    out = io.StringIO()
+    writer = csv.writer(out)
+    writer.writerow(CSV_COLUMNS)
+    for number, run in enumerate(iter_runs(query), start=1):
+        writer.writerow(_csv_row(run))
+        if number % rows == 0:
+            yield out.getvalue().encode()
+            out.seek(0)
+            out.truncate()
+    yield out.getvalue().encode()
 
 
 def _csv_row(run: RunDict) -> Iterable[object]:

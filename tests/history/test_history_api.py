@@ -8,11 +8,13 @@ import io
 from datetime import timedelta
 
 import pytest
+from django.contrib.auth import get_user_model
 from django.utils import timezone
 
 from jobs.analysing import analysis_of
 from jobs.history import HistoryEntry
 from jobs.models import Job
+from printhost.access import issue_key
 
 pytestmark = pytest.mark.django_db
 
@@ -274,6 +276,14 @@ def test_totals_over_a_period_and_a_printer(farm, runs):
     assert (empty["jobs"], empty["success_rate"]) == (0, None)
 
 
+#: The test client reads the export's async stream at once (daphne sends it as it
+#: comes); Django warns that it must.
+SYNC_READ = pytest.mark.filterwarnings(
+    "ignore:StreamingHttpResponse must consume asynchronous iterators"
+)
+
+
+@SYNC_READ
 def test_csv_export_is_an_attachment_with_a_row_per_run(farm, runs):
     answer = farm.client("alice").get("/printer/history?format=csv&printer=p")
 
@@ -282,7 +292,8 @@ def test_csv_export_is_an_attachment_with_a_row_per_run(farm, runs):
     assert answer["Content-Disposition"].startswith(
         'attachment; filename="printhost-history-'
     )
-    rows = list(csv.DictReader(io.StringIO(answer.content.decode())))
+    assert answer.streaming, "an export is written as it is read, not held whole"
+    rows = list(csv.DictReader(io.StringIO(b"".join(answer).decode())))
     assert len(rows) == 5
     by_job = {int(r["job"]): r for r in rows}
     resumed = by_job[runs["resumed"].pk]
@@ -293,11 +304,69 @@ def test_csv_export_is_an_attachment_with_a_row_per_run(farm, runs):
     assert float(by_job[runs["done"].pk]["filament_used_mm"]) > 100
 
 
+@SYNC_READ
 def test_csv_keeps_a_file_name_that_looks_like_a_formula_as_text(farm):
     job = farm.run(farm.p, "alice", "completed")
     HistoryEntry.objects.filter(job_number=job.pk).update(name="=cmd|' /C calc'!A0")
 
     answer = farm.client("alice").get("/printer/history?format=csv")
 
-    rows = list(csv.DictReader(io.StringIO(answer.content.decode())))
+    rows = list(csv.DictReader(io.StringIO(b"".join(answer).decode())))
     assert rows[0]["name"] == "'=cmd|' /C calc'!A0"
+
+
+@pytest.mark.django_db(transaction=True)
+def test_csv_export_is_sent_as_it_is_read_under_asgi(make_printer, monkeypatch) -> None:
+    """Through the ASGI application daphne serves: the export's first rows go out
+    before its last are read (a batch of 500 runs at a time), not read whole first."""
+    import asyncio
+
+    from asgiref.testing import ApplicationCommunicator
+
+    from printhost.api import print_history
+    from printhost.asgi import http_application
+
+    read = [0]
+    runs = print_history.iter_runs
+
+    def counted(query):
+        for run in runs(query):
+            read[0] += 1
+            yield run
+
+    monkeypatch.setattr(print_history, "iter_runs", counted)
+
+    printer = make_printer(slug="p")
+    root = get_user_model().objects.create_superuser("root", password="x")
+    key = issue_key(root, "export")[1]
+    now = timezone.now()
+    HistoryEntry.objects.bulk_create(
+        HistoryEntry(
+            job_number=n, printer=printer, name=f"run {n}.gcode", started_at=now,
+            finished_at=now, outcome="completed",
+        )
+        for n in range(1, 1201)
+    )  # fmt: skip
+
+    async def export() -> list[bytes]:
+        scope = {
+            "type": "http", "method": "GET", "path": "/printer/history",
+            "query_string": b"format=csv", "headers": [(b"x-api-key", key.encode())],
+            "server": ("testserver", 80), "client": ("127.0.0.1", 5000),
+            "scheme": "http", "http_version": "1.1", "root_path": "",
+        }  # fmt: skip
+        app = ApplicationCommunicator(http_application, scope)
+        await app.send_input({"type": "http.request", "body": b""})
+        start = await app.receive_output(30)
+        assert start["status"] == 200, start
+        bodies = [(await app.receive_output(30))["body"]]
+        assert read[0] < 1200, "every run was read before the first was sent"
+        while True:
+            message = await app.receive_output(30)
+            bodies.append(message.get("body", b""))
+            if not message.get("more_body"):
+                return bodies
+
+    bodies = asyncio.run(export())
+    rows = list(csv.DictReader(io.StringIO(b"".join(bodies).decode())))
+    assert len(rows) == 1200
