@@ -130,7 +130,10 @@ def query_from(caller: Caller, params: Mapping[str, str]) -> HistoryQuery:
     if since is not None and before is not None and since >= before:
         raise HttpError(400, "before must be later than since")
     return HistoryQuery(
-        printer_ids=readable,
+        # A caller who may read the runs of deleted printers holds a role on every
+        # printer: no list to match (an OR with it made the database sort every
+        # run, 200 ms a page at 100,000 runs against 5 ms).
+        printer_ids=None if orphans else readable,
         orphans=orphans,
         printer_id=printer_id,
         user=params.get("user") or None,
