@@ -50,6 +50,12 @@ MAGIC = b"GCDE"
 #: a size over this is a broken file, never a reason to allocate gigabytes. Deflate
 #: stops at the promised size; heatshrink expands at most 8 times.
 MAX_BLOCK_BYTES = 8 << 20
+#: What a file may decode to: EXPANSION times the bytes read so far, plus
+#: EXPANSION_SLACK. Slicers' files decode to a few times their size; a small file
+#: that decodes to gigabytes is a bomb, whose every line the upload's check, the
+#: analysis and the worker would read.
+EXPANSION = 64
+EXPANSION_SLACK = 64 << 20
 
 _FILE_HEADER = struct.Struct("<4sIH")
 _BLOCK_HEADER = struct.Struct("<HHI")
@@ -107,6 +113,7 @@ class BgcodeReader:
         self._name = name
         self._digest = digest
         self._offset = 0
+        self._decoded = 0
         head = self._read(_FILE_HEADER.size, "the file header")
         magic, version, checksum = _FILE_HEADER.unpack(head)
         if magic != MAGIC:
@@ -192,6 +199,12 @@ class BgcodeReader:
                 )
         elif encoding != 0:
             raise BadBgcode(f"{self._name}: {where} has metadata encoding {encoding}")
+        self._decoded += len(data)
+        if self._decoded > EXPANSION * self._offset + EXPANSION_SLACK:
+            raise BadBgcode(
+                f"{self._name}: by {where} it decodes to {self._decoded} bytes from "
+                f"{self._offset}, more than {EXPANSION} times: not a slicer's file"
+            )
         return Block(block_type, start, self._offset, data)
 
     def _unpack(self, raw: bytes, compression: int, size: int, where: str) -> bytes:

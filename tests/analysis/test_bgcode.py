@@ -302,3 +302,19 @@ def test_a_line_without_end_is_refused_before_it_grows_past_4_mb(
     for path in (binary, text):
         with pytest.raises(BadGcode, match="longer than 4 MB: not G-code"):
             inspect_file(path, name="endless")
+
+
+def test_a_file_that_decodes_to_far_more_than_a_slicers_would_is_refused(
+    tmp_path: Path,
+) -> None:
+    """Twenty 8 MB blocks of 22 KB each: 160 MB of G-code from 450 KB, which the
+    upload check, the analysis and the worker would each read line by line."""
+    comment = b";" + b"A" * 1000 + b"\n"
+    data = comment * (8_000_000 // len(comment))
+    bomb = tmp_path / "bomb.bgcode"
+    bomb.write_bytes(
+        HEADER + block(1, b"\0\0", b"G1 X1\n")
+        + b"".join(block(1, b"\0\0", data, compression=1) for _ in range(20))
+    )  # fmt: skip
+    with pytest.raises(BadGcode, match="more than 64 times: not a slicer's file"):
+        inspect_file(bomb, name="bomb")
