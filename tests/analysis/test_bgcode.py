@@ -318,3 +318,26 @@ def test_a_file_that_decodes_to_far_more_than_a_slicers_would_is_refused(
     )  # fmt: skip
     with pytest.raises(BadGcode, match="more than 64 times: not a slicer's file"):
         inspect_file(bomb, name="bomb")
+
+
+def test_the_analysis_beats_between_thumbnail_blocks(
+    make_printer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Pictures are decoded (a QOI one into PNG, in Python) between G-code blocks:
+    a file of many large ones kept the analysis from its heartbeat for minutes,
+    and another worker took it over again and again."""
+    beats: list[int] = []
+    monkeypatch.setattr(analysis_task, "HEARTBEAT_SECONDS", 0.0)
+    monkeypatch.setattr(
+        analysis_task, "_heartbeat", lambda pk, worker, done: beats.append(done)
+    )
+    picture = png_encode(4, 4, b"\x80" * 64)
+    path = tmp_path / "pictures.bgcode"
+    path.write_bytes(
+        HEADER
+        + b"".join(block(5, struct.pack("<HHH", 0, 4, 4), picture) for _ in range(5))
+        + block(1, b"\0\0", b"G28\nG1 X10 E1\n")
+    )
+    job = enqueue_job(make_printer(), path, name="pictures.bgcode")
+    assert analysis_task.run(job.analysis_id) == "done"
+    assert len(beats) >= 6, "no heartbeat while the thumbnails were read"
