@@ -76,6 +76,8 @@ _SPELLED = {
     "ł": "l", "Ł": "L", "đ": "d", "Đ": "D", "þ": "th", "Þ": "Th", "°": "deg",
 }  # fmt: skip
 _GRBL_REALTIME = "?!~"
+#: A command that starts with a line number of its own (GRBL ignores them).
+_OWN_NUMBER = re.compile(r"[Nn]\s*\d")
 
 
 def _printable(char: str) -> bool:
@@ -131,6 +133,11 @@ def command_problem(text: str, *, grbl: bool = False) -> str:
         return (
             f"{what} cannot be sent: the firmware takes printable ASCII only "
             "(comments and M117/M118 messages may hold any text)"
+        )
+    if not grbl and text[:1] in "Nn" and _OWN_NUMBER.match(text):
+        return (
+            "the line carries its own line number: printhost numbers the lines it "
+            "sends; remove the N words"
         )
     if grbl:
         realtime = next((char for char in text if char in _GRBL_REALTIME), None)

@@ -7,6 +7,7 @@ marlin.py; the lines and their byte budget live in marlin_window.LineWindow.
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING
 
 from printers.protocol.errors import CommandRejected, LocalProtocolError
@@ -17,6 +18,9 @@ if TYPE_CHECKING:
     from printers.protocol.marlin import MarlinProtocol
 
 __all__ = ["Sending"]
+
+#: A command that starts with a line number of its own (`N7 ...`).
+_OWN_NUMBER = re.compile(r"[Nn]\s*\d")
 
 
 class Sending:
@@ -162,6 +166,13 @@ def _validate(text: str) -> str:
     stripped = text.strip()
     if not stripped:
         raise CommandRejected(f"empty command {text!r}: there is nothing to send")
+    if stripped[0] in "Nn" and _OWN_NUMBER.match(stripped):
+        # `N7 M110 N500*127` framed again would set the firmware's line number
+        # behind the host's back: every later line would be out of step.
+        raise CommandRejected(
+            f"{stripped[:30]!r} carries its own line number: printhost numbers the "
+            "lines it sends (to set the number, send M110 N<n>)"
+        )
     if stripped.isascii() and stripped.isprintable():  # " " to "~" only
         return stripped
     for char in stripped:

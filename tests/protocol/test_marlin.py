@@ -157,6 +157,8 @@ def test_nonsense_settings_are_refused(options: dict[str, object]) -> None:
         ("G1 X1\nG1 X2", "ASCII"),
         ("G1 X1\x00", "ASCII"),
         ("M117 " + "x" * 91, "characters"),
+        # Framed again as N1 N7 M110 N500*127*62: the firmware's count jumps.
+        ("N7 M110 N500*127", "its own line number"),
     ],
 )
 def test_unsendable_commands_are_rejected(text: str, problem: str) -> None:
