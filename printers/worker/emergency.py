@@ -1,4 +1,5 @@
-"""What an M112 needs beyond the line itself, and which path the stop took.
+"""What an M112 needs beyond the line itself, and which path the stop took; and
+how a GRBL job that ends before its end stops the machine (`hold_then_reset`).
 
 Marlin acts on M112 the moment it arrives only with its emergency parser
 (`Cap:EMERGENCY_PARSER:1` in the M115 reply). Stock builds have it off: there M112
@@ -14,6 +15,11 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
+
+#: After the feed hold that ends a GRBL job, how long GRBL has to come to rest
+#: before it is reset all the same (s): a reset while it still decelerates loses
+#: its position (ALARM:3), a machine left running is worse.
+HOLD_SETTLE_SECONDS = 2.0
 
 
 def after_m112(worker: PrinterWorker, who: str) -> str:
@@ -58,3 +64,31 @@ def after_m112(worker: PrinterWorker, who: str) -> str:
     worker.note(f"emergency stop{who}: {path}")
     worker.halted = f"emergency stop{who}: {path}; home before printing again"
     return path
+
+
+def hold_then_reset(worker: PrinterWorker, now: float) -> None:
+    """A GRBL job ended before its end (aborted, failed): stop the machine.
+
+    GRBL runs what it buffered (its RX buffer and planner) whatever the host does
+    next, spindle or laser on: a feed hold now, then a soft reset once it is held
+    (`reset_when_held`), which empties its buffers and turns the spindle and
+    coolant off while keeping its position. Jobs wait for the reset's banner.
+    """
+    if worker.expect_reset or worker.reset_due is not None:
+        return  # a reset is on its way already (an emergency stop sent one)
+    worker.protocol.send_emergency("!", now)
+    worker.reset_due = now + HOLD_SETTLE_SECONDS
+
+
+def reset_when_held(worker: PrinterWorker, now: float, state: str = "") -> None:
+    """The soft reset `hold_then_reset` owes: once GRBL reports *state* `Hold:0`
+    (held) or `Idle`, or HOLD_SETTLE_SECONDS after the hold."""
+    due = worker.reset_due
+    if due is None or (now < due and state not in ("Hold:0", "Idle")):
+        return
+    worker.reset_due = None
+    if worker.transport is None:
+        return  # the port went away: nothing to reset, the board is on its own
+    worker.expect_reset = True
+    worker.protocol.send_emergency("\x18", now)
+    worker.note("GRBL reset after the job stopped: its buffers and spindle cleared")

@@ -113,6 +113,8 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         self.sd_replies = not printer.is_grbl
         #: An emergency DTR reset is under way: its reset banner keeps the halt.
         self.expect_reset = False
+        #: A GRBL job stopped: the soft reset owed after its feed hold, by then.
+        self.reset_due: float | None = None
         self.last_stream_error = ""
         #: The start script of the job being started (its failure fails the job).
         self.start_script: Stream | None = None

@@ -13,6 +13,7 @@ from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unloc
 from printers.streaming import Stream
 from printers.streaming import host_events as hv
 from printers.worker import spool
+from printers.worker.emergency import hold_then_reset, reset_when_held
 from printers.worker.lease import UNREACHABLE, DatabaseAway
 
 if TYPE_CHECKING:
@@ -126,6 +127,7 @@ class Reactions:
         self.status.update(
             machine_status={"state": state, **fields, "check_mode": check_mode}
         )
+        reset_when_held(self, self.clock(), state)
         if state.startswith("Alarm"):
             if not self.grbl_alarm:
                 self._show_alarm("GRBL is in alarm")
@@ -227,9 +229,10 @@ class Reactions:
         self.hello(now)
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
-        """GRBL executes what it buffered even after an error: hold the feed."""
+        """GRBL executes what it buffered even after an error or an abort: hold the
+        feed, then reset it once held (printers/worker/emergency.py)."""
         if self.printer.is_grbl:
-            self.protocol.send_emergency("!", self.clock())
+            hold_then_reset(self, self.clock())
 
     # -- stream host events -----------------------------------------------------
 
@@ -320,6 +323,7 @@ class Reactions:
         self.note(f"{text}: {stream.message}" if stream.message else text)
         if state == Job.State.FAILED:
             self.last_stream_error = stream.message
+        if state in (Job.State.FAILED, Job.State.ABORTED):
             self.stop_motion_after_error()
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")

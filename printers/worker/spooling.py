@@ -27,6 +27,8 @@ class Spooling:
         """
         if self.transport is None or self.halted or self.waitstart:
             return
+        if self.reset_due is not None or self.expect_reset:
+            return  # GRBL is being reset after a stopped job: its lines would go
         if self.host.current_stream is not None or self.host.script_queue:
             return
         if not (read or self.look_for_jobs):

@@ -13,6 +13,7 @@ import time
 from typing import TYPE_CHECKING
 
 from printers.worker import spool
+from printers.worker.emergency import reset_when_held
 from printers.worker.lease import UNREACHABLE, DatabaseAway
 from printhost.longrunning import close_failed_connections
 
@@ -40,6 +41,7 @@ class DatabaseTurns:
             self.next_read = now + self._read_interval()
             read = not self.wakeups.quiet(now)
         self.poll_temperature(now)
+        reset_when_held(self, now)
         try:
             if not self.lease.away:
                 close_failed_connections()

@@ -476,3 +476,68 @@ def test_a_request_the_worker_fails_on_is_answered_before_it_stops(
     assert (answered.state, answered.reply) == (
         "failed", "error: the worker failed on this: ZeroDivisionError('division by zero')"
     )  # fmt: skip
+
+
+def _grbl_cutting(sim_factory, make_printer, make_job, text: str):
+    sim = sim_factory("grbl", "--baud", "115200", "--time-scale", "1")
+    printer = make_printer(
+        port=str(sim.link), baud=115200, firmware="grbl", status_interval=0.2
+    )
+    job = make_job(printer, text)
+    worker = start_worker(printer)
+    wait_for(lambda: " M3 " in f" {sim.stats()['state']} ", 30, "the spindle on",
+             step=worker.tick)  # fmt: skip
+    return sim, printer, job, worker
+
+
+def _stopped(sim, worker) -> None:
+    """GRBL reset (its buffers gone, the spindle off) and idle, nothing run since."""
+    wait_for(
+        lambda: " M5 " in f" {sim.stats()['state']} "
+        and worker.status.fields.get("machine_status", {}).get("state") == "Idle"
+        and not worker.expect_reset,
+        15, "GRBL reset, its spindle off", step=worker.tick,
+    )  # fmt: skip
+    ran = sim.stats()["executed"]
+    seen: list[object] = []
+
+    def reports() -> bool:  # two more status reports: time for anything buffered
+        report = worker.protocol.last_status
+        if not seen or seen[-1] is not report:
+            seen.append(report)
+        return len(seen) >= 3
+
+    wait_for(reports, 10, "two more status reports", step=worker.tick)
+    assert sim.stats()["executed"] == ran, "GRBL ran on after the reset"
+
+
+@pytest.mark.parametrize("how", ["aborted", "failed"])
+def test_a_grbl_job_that_stops_early_stops_the_machine_and_its_spindle(
+    sim_factory, make_printer, make_job, how
+):
+    """GRBL runs what it buffered whatever the host does next: an abort queued
+    nothing ahead of it and an error:N sent a feed hold only, so the machine cut
+    on (held, the spindle on, the rest of the job in its buffer for a `~`)."""
+    from jobs.commands import request_action
+
+    bad = "G0X\n" if how == "failed" else ""  # error:2, halfway
+    moves = segments(400, cnc=True).splitlines(keepends=True)
+    text = "M3 S12000\n" + "".join(moves[:200]) + bad + "".join(moves[200:])
+    sim, printer, job, worker = _grbl_cutting(sim_factory, make_printer, make_job, text)
+    try:
+        if how == "aborted":
+            wait_for(lambda: len(sim.executed()) > 20, 30, "motion", worker.tick)
+            request_action(printer, "abort", origin="tester")
+        wait_for(lambda: job_state(job).state == how, 60, how, step=worker.tick)
+        _stopped(sim, worker)
+        worker.log.flush()
+    finally:
+        worker.stop()
+    texts = list(
+        ResponseLine.objects.filter(printer=printer)
+        .order_by("seq")
+        .values_list("text", flat=True)
+    )
+    hold = texts.index("<! feed hold>")
+    assert any(t.startswith("<0x18") for t in texts[hold:]), "no soft reset"
+    assert len(job_lines(sim)) < len(commands_of(text)), "the job ran to its end"
