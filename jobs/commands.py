@@ -56,7 +56,7 @@ def request_action(printer: Printer, action: str, *, origin: str = "") -> Queued
         card_name(action.partition(":")[2])  # SdRefused (a ValueError) if unusable
     elif action.startswith(prompt):
         choice = action[len(prompt) :]
-        if not (choice.isdigit() and len(choice) <= 2):
+        if not (choice.isascii() and choice.isdigit() and len(choice) <= 2):
             raise ValueError(
                 f"the prompt's choice must be a button index, not {choice!r}"
             )

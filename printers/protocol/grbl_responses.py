@@ -105,7 +105,7 @@ def _read_ok(line: str, match: re.Match[str]) -> Response:
 
 def _read_error(line: str, match: re.Match[str]) -> Response:
     detail = match.group(1).strip()
-    if detail.isdigit():
+    if _is_number(detail):
         code = int(detail)
         answer = Answer(
             failed=True, code=code, message=f"error:{code} {error_meaning(code)}"
@@ -126,7 +126,7 @@ def _read_banner(line: str, match: re.Match[str]) -> Response:
 
 def _read_alarm(line: str, match: re.Match[str]) -> Response:
     detail = match.group(1).strip()
-    if detail.isdigit():
+    if _is_number(detail):
         code = int(detail)
         alarm = Alarm(code, f"ALARM:{code} {alarm_meaning(code)}")
     else:
@@ -142,7 +142,7 @@ def _read_version(line: str, match: re.Match[str]) -> Response:
 
 def _read_options(line: str, match: re.Match[str]) -> Response:
     letters, *numbers = match.group(1).split(",")
-    sizes = [int(n) if n.strip().isdigit() else None for n in numbers[:2]]
+    sizes = [int(n) if _is_number(n.strip()) else None for n in numbers[:2]]
     sizes += [None] * (2 - len(sizes))
     options = BuildOptions(letters, sizes[0], sizes[1], {"OPT": match.group(1)})
     return Response(LineKind.RESPONSE, options)
@@ -186,3 +186,9 @@ _READERS: tuple[tuple[re.Pattern[str], _Reader], ...] = (
     (re.compile(r"\[FIRMWARE:(.*)\]$"), _read_firmware),
     (re.compile(r"\[MSG:(.*)\]$"), _read_message),
 )
+
+
+def _is_number(text: str) -> bool:
+    """ASCII digits only: str.isdigit() takes "²" too, which int() refuses, and a
+    line-noise byte must not stop the worker."""
+    return text.isascii() and text.isdigit()

@@ -794,3 +794,15 @@ def test_abandon_forgets_lines_but_keeps_realtime_bytes() -> None:
     assert protocol.in_flight == 0
     assert protocol.next_deadline() is None
     assert protocol.data_to_send() == b"!"
+
+
+@pytest.mark.parametrize("line", ["error:²", "ALARM:¹", "[OPT:V,15,²]"])
+def test_a_digit_that_is_not_ascii_is_read_as_text_not_a_crash(line: str) -> None:
+    """str.isdigit() takes "²" and "¹", which int() refuses: line noise stopped the
+    worker mid-job (its feed hold never written)."""
+    grbl = GrblProtocol()
+    grbl.receive_data(line.encode() + b"\n", 0.0)
+    events = []
+    while (event := grbl.next_event()) is not None:
+        events.append(event)
+    assert events, "nothing was read"
