@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
 
+#: How an emergency stop's halt begins: only an operator's reconnect ends it.
+EMERGENCY = "emergency stop"
 #: After the feed hold that ends a GRBL job, how long GRBL has to come to rest
 #: before it is reset all the same (s): a reset while it still decelerates loses
 #: its position (ALARM:3), a machine left running is worse.
@@ -35,14 +37,12 @@ def after_m112(worker: PrinterWorker, who: str) -> str:
         # with nothing moving leaves GRBL unlocked, and the next job would run.
         worker.expect_reset = True
         worker.note(f"emergency stop{who}: feed hold and soft reset sent")
-        worker.halted = f"emergency stop{who}: reconnect to run jobs again"
+        worker.halted = f"{EMERGENCY}{who}: reconnect to run jobs again"
         return ""
     if worker.emergency_parser:
         path = "M112 sent; the firmware's emergency parser acts on it at once"
         worker.note(f"emergency stop{who}: {path}")
-        worker.halted = (
-            f"emergency stop{who}: {path}; reset the printer, then reconnect"
-        )
+        worker.halted = f"{EMERGENCY}{who}: {path}; reset the printer, then reconnect"
         return path
     why = (
         "the firmware has no emergency parser"
@@ -62,7 +62,7 @@ def after_m112(worker: PrinterWorker, who: str) -> str:
             "its buffered moves were dropped"
         )
     worker.note(f"emergency stop{who}: {path}")
-    worker.halted = f"emergency stop{who}: {path}; home before printing again"
+    worker.halted = f"{EMERGENCY}{who}: {path}; home before printing again"
     return path
 
 

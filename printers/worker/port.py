@@ -9,6 +9,7 @@ from printers.driver import protocol_for
 from printers.models import Printer
 from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
 from printers.transport import PortNotAllowed, SerialTransport, TransportError
+from printers.worker.emergency import EMERGENCY
 
 if TYPE_CHECKING:
     from printers.worker.loop import PrinterWorker
@@ -47,7 +48,10 @@ class PortHandling:
         self.link.connected(now)
         self.protocol = protocol_for(self.config)
         self.host = StreamHost(self.protocol, scripts=self.printer.scripts())
-        self.halted = ""
+        if not self.halted.startswith(EMERGENCY):
+            # An emergency stop ends only by an operator's reconnect: a port that
+            # came back by itself (a cable, a reset board) is no one saying so.
+            self.halted = ""
         self.autoreport = False
         self.emergency_parser, self.expect_reset = None, False
         # Capabilities are the connected firmware's: M115 reports them again (a

@@ -13,7 +13,7 @@ from printers.protocol.grbl_events import BuildOptions, CheckMode, Locked, Unloc
 from printers.streaming import Stream
 from printers.streaming import host_events as hv
 from printers.worker import spool
-from printers.worker.emergency import hold_then_reset, reset_when_held
+from printers.worker.emergency import EMERGENCY, hold_then_reset, reset_when_held
 from printers.worker.lease import UNREACHABLE, DatabaseAway
 
 if TYPE_CHECKING:
@@ -88,7 +88,8 @@ class Reactions:
                 self._on_reset(banner, now)
             case ev.FirmwareHalted(message=message):
                 self.stop_streams(f"the firmware halted: {message}", note=True)
-                self.halted = f"{message} (reset the printer, then reconnect)"
+                if not self.halted.startswith(EMERGENCY):  # the stop says more
+                    self.halted = f"{message} (reset the printer, then reconnect)"
             case ev.Alarm(message=message):
                 self._on_alarm(message)
             case ev.FirmwareError(message=message):
@@ -221,7 +222,7 @@ class Reactions:
         self.sd.reset()
         if self.expect_reset:  # our emergency DTR pulse: the stop's message stays
             self.expect_reset = False
-        else:
+        elif not self.halted.startswith(EMERGENCY):  # the operator's reconnect ends it
             self.halted = ""
         status = self.status.fields.get("machine_status", {})
         if status.get("check_mode"):  # a reset ends GRBL's check mode

@@ -227,6 +227,7 @@ class RequestPoller(EspCommands):
                 worker.waitstart, error = False, ""
             case QueuedCommand.Action.RECONNECT:
                 worker.stay_offline, worker.next_connect = False, 0.0
+                worker.halted = ""  # an emergency stop's halt ends only here
                 worker.disconnect(f"reconnect asked{who}")
                 error = ""
             case QueuedCommand.Action.SD_LIST:

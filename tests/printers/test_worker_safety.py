@@ -541,3 +541,41 @@ def test_a_grbl_job_that_stops_early_stops_the_machine_and_its_spindle(
     hold = texts.index("<! feed hold>")
     assert any(t.startswith("<0x18") for t in texts[hold:]), "no soft reset"
     assert len(job_lines(sim)) < len(commands_of(text)), "the job ran to its end"
+
+
+def test_an_emergency_stop_is_ended_by_an_operator_not_by_the_board_coming_back(
+    sim_factory, make_printer, make_job
+):
+    """A board reset (its button, a power blip) or a port that came back by itself
+    is no one saying the machine is safe again: with auto_start, the next job
+    started on it. Only the operator's reconnect ends the stop."""
+    from jobs.commands import request_action
+
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000, auto_start=True)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.status.state == "idle", 10, "idle", worker.tick)
+        emergency_stop(printer, origin="tester")
+        wait_for(lambda: worker.halted, 10, "the halt", step=worker.tick)
+        job = make_job(printer, "G28\n")
+
+        def starts() -> int:  # Marlin's boot banner
+            worker.log.flush()
+            return ResponseLine.objects.filter(printer=printer, text="start").count()
+
+        before = starts()
+        assert sim.control("reset") == "ok"  # the board comes back by itself
+        wait_for(lambda: starts() > before, 10, "the board's reset", worker.tick)
+        worker.port_lost("unplugged")  # and the port, after its backoff
+        wait_for(lambda: worker.transport is not None, 10, "the port back",
+                 step=worker.tick)  # fmt: skip
+        worker.maybe_claim_job(worker.clock())
+        assert worker.halted.startswith("emergency stop by tester")
+        assert job_state(job).state == "queued"
+
+        request_action(printer, "reconnect", origin="tester")
+        wait_for(lambda: job_state(job).state != "queued", 20, "the job to start",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
