@@ -19,6 +19,7 @@ from printers.streaming import Stream, StreamType, lines_from_text
 from printers.streaming.objects import ObjectFilter
 from printers.worker.emergency import after_m112
 from printers.worker.esp_commands import EspCommands
+from printers.worker.grbl_rules import refused_mid_job
 from printers.worker.lease import UNREACHABLE, DatabaseAway
 from printers.worker.prompts import DISPLAY_HINT
 
@@ -159,6 +160,10 @@ class RequestPoller(EspCommands):
         lines = lines_from_text(row.text)
         if not lines:
             self._finish(row, "error: nothing to send (only comments?)")
+            return
+        refused = refused_mid_job(self.worker, lines)
+        if refused:
+            self._finish(row, f"error: {refused}")
             return
         kind = (
             StreamType.SINGLE_COMMAND

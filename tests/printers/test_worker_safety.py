@@ -579,3 +579,30 @@ def test_an_emergency_stop_is_ended_by_an_operator_not_by_the_board_coming_back(
                  step=worker.tick)  # fmt: skip
     finally:
         worker.stop()
+
+
+def test_a_grbl_job_is_not_changed_under_it_by_a_typed_command(
+    sim_factory, make_printer, make_job
+):
+    """GRBL has one modal state and one set of offsets: G91 typed mid-job made
+    the job's next lines relative, $100= changed its steps/mm halfway."""
+    from jobs.commands import send_command
+    from printers.models import QueuedCommand
+
+    text = "M3 S12000\n" + segments(400, cnc=True)
+    sim, printer, job, worker = _grbl_cutting(sim_factory, make_printer, make_job, text)
+    try:
+        rows = {t: send_command(printer, t) for t in ("G91", "$100=400", "$G")}
+
+        def answered() -> bool:
+            pending = QueuedCommand.objects.filter(pk__in=[r.pk for r in rows.values()])
+            return not pending.filter(state__in=("pending", "sent")).exists()
+
+        wait_for(answered, 20, "the answers", step=worker.tick)
+    finally:
+        worker.stop()
+    replies = {t: QueuedCommand.objects.get(pk=r.pk).reply for t, r in rows.items()}
+    for typed in ("G91", "$100=400"):
+        assert replies[typed].startswith(f"error: {typed!r} would change what GRBL")
+    assert replies["$G"].startswith("ok")
+    assert "G91" not in sim.executed() and "$100=400" not in sim.executed()
