@@ -69,3 +69,20 @@ async def batches_then_a_lost_one(printer: Printer, reads: list[int]) -> int:
     while_heard = len(reads)
     await database_sync_to_async(add_lines)(printer, 21, 22)
     return while_heard
+
+
+def fail_log_reads(monkeypatch: pytest.MonkeyPatch, times: int) -> list[int]:
+    """Make the next *times* reads of the response log (live.lines_after) raise as
+    a locked database does; returns [how many are still to fail]."""
+    from django.db import OperationalError
+
+    read, failures = live.lines_after, [times]
+
+    def flaky(printer_id: int, last: int, upto: int | None = None) -> list:
+        if failures[0]:
+            failures[0] -= 1
+            raise OperationalError("database is locked")
+        return read(printer_id, last, upto)
+
+    monkeypatch.setattr(live, "lines_after", flaky)
+    return failures

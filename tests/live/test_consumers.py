@@ -19,7 +19,7 @@ from printers.models import Printer, QueuedCommand
 from printhost.access import issue_key
 from printhost.asgi import application
 from printhost.models import ApiKey, AuditEntry, PrinterRole, Role
-from tests.live.conftest import add_lines, batches_then_a_lost_one
+from tests.live.conftest import add_lines, batches_then_a_lost_one, fail_log_reads
 
 pytestmark = pytest.mark.django_db(transaction=True)
 TIMEOUT = 5
@@ -578,25 +578,17 @@ def test_a_failed_read_of_the_log_is_tried_again_the_next_period(
 ) -> None:
     """The database locked or away for a moment: the client still gets the lines
     whose batch was lost (and its key is still checked) once it answers."""
-    from django.db import OperationalError
-
     key = user_key("viewer", Role.VIEWER)
-    read, failures = live.lines_after, [2]
-
-    def flaky(printer_id: int, last: int, upto: int | None = None) -> list:
-        if failures[0]:
-            failures[0] -= 1
-            raise OperationalError("database is locked")
-        return read(printer_id, last, upto)
+    failures: dict[str, list[int]] = {}
 
     async def scenario() -> list[int]:
         client = await connect(f"/ws/printers/mk3/?apikey={key}&last=0")
         await until(client, "hello")
-        monkeypatch.setattr(live, "lines_after", flaky)
+        failures["left"] = fail_log_reads(monkeypatch, 2)
         await database_sync_to_async(add_lines)(printer, 1, 3)
         seen = await line_ids(client, 3)
         await client.disconnect()
         return seen
 
     assert run(scenario()) == [1, 2, 3]
-    assert failures == [0]
+    assert failures["left"] == [0], "the reads did not fail"

@@ -17,7 +17,7 @@ from printers.models import Printer, ResponseLine
 from printers.terminal import Session
 from printhost.access import issue_key
 from printhost.models import ApiKey, PrinterRole, Role
-from tests.live.conftest import add_lines, batches_then_a_lost_one
+from tests.live.conftest import add_lines, batches_then_a_lost_one, fail_log_reads
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -209,20 +209,12 @@ def test_a_client_that_reads_nothing_is_disconnected(
 def test_a_failed_read_of_the_log_is_tried_again_and_the_session_goes_on(
     watched: tuple[Printer, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from django.db import OperationalError
-
     printer, key = watched
-    read, failures = live.lines_after, [2]
-
-    def flaky(printer_id: int, last: int, upto: int | None = None) -> list:
-        if failures[0]:
-            failures[0] -= 1
-            raise OperationalError("database is locked")
-        return read(printer_id, last, upto)
+    failures: dict[str, list[int]] = {}
 
     async def scenario() -> list[str]:
         server, reader, writer, _ = await open_session(printer, key)
-        monkeypatch.setattr(live, "lines_after", flaky)
+        failures["left"] = fail_log_reads(monkeypatch, 2)
         await database_sync_to_async(add_lines)(printer, 1, 2)
         got = [
             (await asyncio.wait_for(reader.readline(), 10)).decode() for _ in range(2)
@@ -232,4 +224,4 @@ def test_a_failed_read_of_the_log_is_tried_again_and_the_session_goes_on(
         return got
 
     assert asyncio.run(asyncio.wait_for(scenario(), 30)) == ["echo 1\n", "echo 2\n"]
-    assert failures == [0]
+    assert failures["left"] == [0], "the reads did not fail"
