@@ -30,7 +30,7 @@ from functools import partial
 from typing import TYPE_CHECKING, TypeVar, cast
 
 from jobs.bgcode import BadBgcode, BgcodeReader, BlockType, is_bgcode
-from printers.protocol.checksum import clean_line
+from printers.protocol.checksum import clean_line, has_own_number
 
 T = TypeVar("T")
 C = TypeVar("C")
@@ -76,8 +76,6 @@ _SPELLED = {
     "ł": "l", "Ł": "L", "đ": "d", "Đ": "D", "þ": "th", "Þ": "Th", "°": "deg",
 }  # fmt: skip
 _GRBL_REALTIME = "?!~"
-#: A command that starts with a line number of its own (GRBL ignores them).
-_OWN_NUMBER = re.compile(r"[Nn]\s*\d")
 
 
 def _printable(char: str) -> bool:
@@ -134,7 +132,7 @@ def command_problem(text: str, *, grbl: bool = False) -> str:
             f"{what} cannot be sent: the firmware takes printable ASCII only "
             "(comments and M117/M118 messages may hold any text)"
         )
-    if not grbl and text[:1] in "Nn" and _OWN_NUMBER.match(text):
+    if not grbl and has_own_number(text):  # GRBL ignores N words
         return (
             "the line carries its own line number: printhost numbers the lines it "
             "sends; remove the N words"

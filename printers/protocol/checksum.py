@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-__all__ = ["checksum", "clean_line", "format_line", "parse_framed_line"]
+import re
+
+__all__ = [
+    "checksum",
+    "clean_line",
+    "format_line",
+    "has_own_number",
+    "parse_framed_line",
+]
 
 
 def checksum(text: str) -> int:
@@ -11,6 +19,16 @@ def checksum(text: str) -> int:
     for byte in text.encode("ascii", "replace"):
         value ^= byte
     return value
+
+
+#: A command that starts with a line number of its own (`N7 ...`).
+_OWN_NUMBER = re.compile(r"[Nn]\s*\d")
+
+
+def has_own_number(text: str) -> bool:
+    """*text* starts with a line number of its own: framed again (`N1 N7 ...`),
+    Marlin would take its N as the next line number, or its command as unknown."""
+    return text[:1] in ("N", "n") and _OWN_NUMBER.match(text) is not None
 
 
 def format_line(n: int, command: str) -> str:

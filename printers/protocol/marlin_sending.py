@@ -7,9 +7,9 @@ marlin.py; the lines and their byte budget live in marlin_window.LineWindow.
 
 from __future__ import annotations
 
-import re
 from typing import TYPE_CHECKING
 
+from printers.protocol.checksum import has_own_number
 from printers.protocol.errors import CommandRejected, LocalProtocolError
 from printers.protocol.events import Sent
 from printers.protocol.marlin_window import Line, m110_line, new_line
@@ -18,9 +18,6 @@ if TYPE_CHECKING:
     from printers.protocol.marlin import MarlinProtocol
 
 __all__ = ["Sending"]
-
-#: A command that starts with a line number of its own (`N7 ...`).
-_OWN_NUMBER = re.compile(r"[Nn]\s*\d")
 
 
 class Sending:
@@ -166,7 +163,7 @@ def _validate(text: str) -> str:
     stripped = text.strip()
     if not stripped:
         raise CommandRejected(f"empty command {text!r}: there is nothing to send")
-    if stripped[0] in "Nn" and _OWN_NUMBER.match(stripped):
+    if has_own_number(stripped):
         # `N7 M110 N500*127` framed again would set the firmware's line number
         # behind the host's back: every later line would be out of step.
         raise CommandRejected(
