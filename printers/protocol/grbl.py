@@ -128,6 +128,8 @@ class GrblProtocol(Sending):
         #: When the oldest `?` still without any report went out.
         self._unreported_since: float | None = None
         self._events: deque[Event] = deque()
+        #: The events not taken yet, oldest first (`next_event` pops them).
+        self.events = self._events
         self._inbox = bytearray()
         self._outbox: deque[Line] = deque()  # accepted by send(), not yet written
         self._waiting: deque[Line] = deque()  # written, not yet answered

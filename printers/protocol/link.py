@@ -20,6 +20,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
+    from collections import deque
+
     from printers.protocol.events import Event
 
 
@@ -34,6 +36,9 @@ class LinkProtocol(Protocol):
     #: A command to send after a job's last line, whose answer proves the firmware
     #: got every line before it (Marlin: a numbered M105); None when there is none.
     closing_sync: str | None
+    #: The events not taken yet, oldest first: what `next_event` pops (a loop may
+    #: take them from here, without a call for each).
+    events: deque[Event]
 
     def can_send(self, text: str) -> bool:
         """True when *text* may go now without breaking the window or a sync rule."""

@@ -214,6 +214,8 @@ class MarlinProtocol(Sending, ReplyHandling):
         #: Statistics: lines written (resends and timeouts: see the properties).
         self.lines_sent = 0
         self._events: deque[Event] = deque()
+        #: The events not taken yet, oldest first (`next_event` pops them).
+        self.events = self._events
         self._rx = b""
         self._advanced, self._max_b = False, 0
         self._previous: Reply | None = None
@@ -308,7 +310,10 @@ class MarlinProtocol(Sending, ReplyHandling):
 
     def receive_data(self, data: bytes, now: float) -> None:
         """Feed firmware bytes; b"" only means nothing arrived (the clock still moves)."""
-        self._window.advance(now)
+        window = self._window
+        window.clock = now  # window.advance(now), whose drain check is below
+        if window.drain_until is not None:
+            window.advance(now)
         if data:
             lines = _NEWLINES.split(self._rx + data)
             self._rx = lines.pop()
@@ -322,7 +327,12 @@ class MarlinProtocol(Sending, ReplyHandling):
                     continue
                 for part in split_merged(text) if text else ():
                     self._handle_line(part)
-        self._pump()
+        if (
+            window.queued
+            or window.rewind_next < window.rewind_end
+            or window.rewind_tags
+        ):
+            window.pump(self._max_lines())  # _pump, its test spelled out
 
     def next_event(self) -> Event | None:
         """The next event, or None when more data is needed."""

@@ -102,7 +102,7 @@ class Recovery(Deadlines):
 
     def ok(self, n: int | None, *, temperatures: bool = False) -> None:
         """`ok` or `ok N<n>`: T3, R1, R1b, T5, then acknowledge what it answers."""
-        self.progress()
+        self._last_progress = self._window.clock  # progress()
         self._consecutive_timeouts = 0
         settled = not self.awaiting_ok and self._held_ok is None
         if temperatures and settled and self._ack_through_probe():
@@ -143,13 +143,12 @@ class Recovery(Deadlines):
             self._apply_ok(held[0])
 
     def _apply_ok(self, n: int | None) -> None:
-        if self._window.live:
-            self._error_at = None  # a line got through since the error
         live = self._window.live
-        if live and (n is None or not self._ack_through(n)):
-            if not self._is_stale(n):
+        if live:
+            self._error_at = None  # a line got through since the error
+            if n is None or (not self._ack_through(n) and not self._is_stale(n)):
                 self._acknowledge(live.popleft())
-        elif not live and self._after_timeout and self._window.m110_next():
+        elif self._after_timeout and self._window.m110_next():
             self._ack_unsent_before(self._window.rewind_next + 1)  # T4: late, not lost
 
     def resend(self, reply: Reply, previous: Reply | None) -> None:

@@ -40,13 +40,20 @@ class Sending:
         the same command (offered again each turn while the window has no room for
         it), so it is framed once."""
         line = self._asked
+        # F1: whether a command sent now is numbered.
+        checksums = self._checksums
+        numbered = (
+            checksums == "always"
+            or (checksums == "printing" and self.printing)
+            or self.writing_file
+        )
         if (
             line is None
             or line.text != text
-            or line.numbered != self._numbering()
+            or line.numbered != numbered
             or line.m110 is not None
         ):
-            line = self._asked = self._new_line(text, None)
+            line = self._asked = new_line(text, None, numbered=numbered)
         return line
 
     def _fits(self: MarlinProtocol, line: Line) -> bool:
@@ -79,12 +86,17 @@ class Sending:
         """`send` when `can_send` would say yes, framing the line once; False (the
         line left out) when the window has no room for it now."""
         window = self._window
-        window.advance(now)
-        if window.queued or window.rewinding:
+        window.clock = now  # window.advance(now), whose drain check is below
+        if window.drain_until is not None:
+            window.advance(now)
+        if window.queued or window.rewind_next < window.rewind_end:
             return False
         live = window.live
-        if live and len(live) >= self._max_lines():
-            return False  # W2 whatever the line (room_for), so it is not framed
+        most = 1
+        if live:
+            most = self._max_lines()
+            if len(live) >= most:
+                return False  # W2 whatever the line (room_for), so it is not framed
         line = self._line_for(_validate(text))
         line.tag = tag
         if line.m110 is not None:
@@ -96,14 +108,17 @@ class Sending:
                 f"line {line.wire!r} is {len(line.wire)} characters on the wire; the "
                 f"firmware takes at most {self._max_length} and truncates the rest"
             )
-        if not self._fits(line):
-            return False
-        self._asked = None  # the line is the window's now: never handed out again
         if line.numbered and window.need_m110:
+            if not self._fits(line):
+                return False
+            self._asked = None  # the line is the window's now: never handed out again
             window.enqueue(line)  # behind the M110 that starts numbering (F2)
             self._pump()
-        else:
-            window.go_live(line)  # what enqueue() and the pump would do, at once
+            return True
+        if not window.room_for(line, most):  # _fits without an M110 owed
+            return False
+        self._asked = None  # the line is the window's now: never handed out again
+        window.go_live(line)  # what enqueue() and the pump would do, at once
         return True
 
     def send_emergency(self: MarlinProtocol, text: str, now: float) -> None:
@@ -119,28 +134,25 @@ class Sending:
 
     def data_to_send(self: MarlinProtocol) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
-        self._pump()
         window = self._window
+        if (
+            window.queued
+            or window.rewind_next < window.rewind_end
+            or window.rewind_tags
+        ):
+            window.pump(self._max_lines())  # _pump, its test spelled out
         if window.outbox:
             self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
         elif not window.urgent:
             return b""
         lines = window.take_unwritten()
+        events = self._events
         for line in lines:
-            self._events.append(Sent(line.wire, line.number, line.resend))
+            events.append(Sent(line.wire, line.number, line.resend))
         self.lines_sent += len(lines)
-        return "".join(f"{line.wire}\n" for line in lines).encode("ascii")
-
-    def _numbering(self: MarlinProtocol) -> bool:
-        """F1: whether a command sent now is numbered."""
-        return (
-            self._checksums == "always"
-            or (self._checksums == "printing" and self.printing)
-            or self.writing_file
-        )
-
-    def _new_line(self: MarlinProtocol, text: str, tag: object) -> Line:
-        return new_line(text, tag, numbered=self._numbering())
+        if len(lines) == 1:
+            return f"{lines[0].wire}\n".encode("ascii")
+        return "".join([f"{line.wire}\n" for line in lines]).encode("ascii")
 
     def _max_lines(self: MarlinProtocol) -> int:
         """W2: how many lines may be live at once in the flow mode in force
@@ -163,7 +175,7 @@ def _validate(text: str) -> str:
     stripped = text.strip()
     if not stripped:
         raise CommandRejected(f"empty command {text!r}: there is nothing to send")
-    if has_own_number(stripped):
+    if stripped[:1] in ("N", "n") and has_own_number(stripped):
         # `N7 M110 N500*127` framed again would set the firmware's line number
         # behind the host's back: every later line would be out of step.
         raise CommandRejected(

@@ -193,8 +193,15 @@ class StreamHost(StreamControl):
 
     @property
     def printing(self) -> bool:
-        """A file stream is running (Marlin numbers its lines "only while printing")."""
-        return self.queue_state is QueueState.PROCESSING
+        """A file stream is running (Marlin numbers its lines "only while printing"):
+        queue_state is PROCESSING, asked every turn."""
+        queue = self.stream_queue
+        return bool(queue) and queue[0].state not in (S.PAUSE, S.PAUSED)
+
+    @property
+    def has_events(self) -> bool:
+        """Events wait for `next_event` (asked every turn, most of which have none)."""
+        return bool(self._events)
 
     # -- one step of the command state machine --------------------------------
 
@@ -209,7 +216,8 @@ class StreamHost(StreamControl):
         if stream.printer_side is not None and holding(stream):
             stream.move(S.WAIT_FOR_ACK)
             return True
-        if stream.id not in self._pending:
+        line = self._pending.get(stream.id)
+        if line is None:
             if stream.eof:
                 line = self._closing(stream)
                 if line is None:
@@ -222,40 +230,53 @@ class StreamHost(StreamControl):
                 if line is None:
                     stream.eof = True
                     return True
-            self._pending[stream.id] = line
-        stream.move(S.READ_CURSOR)
+            if line.text.startswith("[ESP"):
+                self._pending[stream.id] = line
+                stream.move(S.READ_CURSOR)
+                stream.move(S.SEND_ESP_COMMAND)
+                return True
         # Straight on, not through advance(): nothing above changed the queues,
         # so the stream is still the active one (the same for the chains below).
-        return self._on_read_cursor(stream, now)
+        return self._send_line(stream, line, now)
 
     def _on_read_cursor(self, stream: Stream, now: float) -> bool:
         line = self._pending[stream.id]
         if line.text.startswith("[ESP"):
             stream.move(S.SEND_ESP_COMMAND)
             return True
-        stream.move(S.SEND_GCODE_COMMAND)
-        return self._on_send_gcode_command(stream, now)
+        return self._send_line(stream, line, now)
 
     def _on_send_gcode_command(self, stream: Stream, now: float) -> bool:
-        """The protocol takes the line now (`offer`), or the stream waits for room."""
-        line = self._pending[stream.id]
+        return self._send_line(stream, self._pending[stream.id], now)
+
+    def _send_line(self, stream: Stream, line: Line, now: float) -> bool:
+        """READ_CURSOR and SEND_GCODE_COMMAND in one step: the protocol takes the
+        line now (`offer`), or the stream waits for room with it pending.
+
+        The moves READY_TO_READ_CURSOR -> READ_CURSOR -> SEND_GCODE_COMMAND and on
+        to READY_TO_READ_CURSOR or WAIT_FOR_ACK are all in the table, and nothing
+        can happen between them: they are made as one assignment (a job line is
+        one of these a turn, and the checked moves were a tenth of its cost).
+        """
         try:
             taken = self.protocol.offer(line.text, now, tag=(stream, line))
         except CommandRejected as error:
-            del self._pending[stream.id]
+            self._pending.pop(stream.id, None)
+            stream.state = S.SEND_GCODE_COMMAND
             self._fail(stream, f"line {line.index + 1}: {error}")
             return True
         if not taken:
-            stream.move(S.WAIT_FOR_ACK)
+            self._pending[stream.id] = line
+            stream.state = S.WAIT_FOR_ACK
             return False
-        del self._pending[stream.id]
+        self._pending.pop(stream.id, None)
         if line.index == CLOSING:
-            stream.move(S.WAIT_FOR_ACK)
+            stream.state = S.WAIT_FOR_ACK
             return True
         stream.sent += 1
         if line.index >= stream.reached:
             stream.reached = line.index + 1
-        stream.move(S.READY_TO_READ_CURSOR)
+        stream.state = S.READY_TO_READ_CURSOR
         return True
 
     def _on_send_esp_command(self, stream: Stream, now: float) -> bool:
@@ -280,10 +301,14 @@ class StreamHost(StreamControl):
             stream.move(S.END)
             self._finish(stream, "completed")
             return True
-        if stream.eof and stream.id not in self._pending:
+        line = self._pending.get(stream.id)
+        if line is not None:
+            # A line waiting for room is offered again (READY_TO_READ_CURSOR on,
+            # whose checks were made above): the protocol says at once whether it
+            # goes.
+            return self._send_line(stream, line, now)
+        if stream.eof:
             return False
-        # A line waiting for room is offered again (READ_CURSOR on): the protocol
-        # says at once whether it goes.
         stream.move(S.READY_TO_READ_CURSOR)
         return self._on_ready_to_read_cursor(stream, now)
 

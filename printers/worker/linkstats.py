@@ -50,12 +50,6 @@ class LinkStats:
         self._next = now
         self._last = {}
 
-    def wrote(self, size: int) -> None:
-        self.bytes_sent += size
-
-    def received(self, size: int) -> None:
-        self.bytes_received += size
-
     def snapshot(self, now: float, protocol: LinkProtocol) -> dict[str, Any] | None:
         """The figures, when a second has passed and they are worth saving; else None.
 

@@ -225,18 +225,20 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
     def tick(self) -> None:
         """One turn of the operations loop (tests call this directly)."""
         now = self.clock()
-        if self.transport is None:
+        transport = self.transport
+        if transport is None:
             self._tick_offline(now)
             return
-        protocol = self.protocol
+        protocol, lease = self.protocol, self.lease
         deadline = protocol.next_deadline()
-        now, wait = self._pace(now, self._wait_time(now, deadline))
+        now, wait = self._pace(now, deadline)
         wake_by = now + wait
-        self.lease.ensure(now)
+        if lease.lost or now >= lease.valid_until:
+            lease.ensure(now)
         try:
-            data = self.transport.read(wait, wake=self.wakeups.fileno())
+            data = transport.read(wait, wake=self.wakeups.fileno())
             now = self.clock()
-            if self.wakeups.take(readable=self.transport.woken):
+            if self.wakeups.take(readable=transport.woken):
                 self.next_poll = self.next_read = wake_by = now
             if data and self.pacer.modelled:
                 data, now = self._rest_of_line(data, now, wake_by)
@@ -246,7 +248,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         protocol.receive_data(data, now)
         self.handle_protocol_events(now)
         if data:
-            self.link.received(len(data))
+            self.link.bytes_received += len(data)
             if self.pacer.sampling(now):
                 self.pacer.acknowledged(protocol.bytes_in_flight, now)
         # The deadline read before the wait, asked again only once it has passed:
@@ -270,7 +272,8 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
 
     def journal_progress(self) -> None:
         """Append the job's acknowledged line to the journal (every tick that moved it)."""
-        stream = self.host.current_stream
+        queue = self.host.stream_queue
+        stream = queue[0] if queue else None  # the host's current_stream
         if stream is not None and spool.is_job(stream):
             self.journal.progress(
                 stream.ref, stream.done, stream.reached, stream.bytes_acked
@@ -280,13 +283,21 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         """Steps 4 and 5: advance the streams and write what is ready, in one call."""
         if self.transport is None:
             return
-        self.protocol.printing = self.host.printing
-        self.protocol.writing_file = self.sd.writing()
-        self.host.advance(now)
-        self.handle_host_events(now)
-        data = self.protocol.data_to_send()
+        host, protocol = self.host, self.protocol
+        protocol.printing = host.printing
+        queue = host.stream_queue
+        # Only a stream with a printer's side (an SD card's) can be writing a file.
+        protocol.writing_file = (
+            bool(queue) and queue[0].printer_side is not None and self.sd.writing()
+        )
+        host.advance(now)
+        if host.has_events:
+            self.handle_host_events(now)
+        data = protocol.data_to_send()
         if data:
-            self.lease.ensure(now)
+            lease = self.lease
+            if lease.lost or now >= lease.valid_until:
+                lease.ensure(now)
             # Timed before the write: writing wakes the reader, which may take
             # this CPU at once, so a time read after it can be late by a lot.
             written_at = self.clock()
@@ -296,14 +307,21 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
                 self.port_lost(str(error))
                 return
             self.pacer.wrote(len(data), written_at)
-            self.link.wrote(len(data))
+            self.link.bytes_sent += len(data)
         self.handle_protocol_events(now)
 
-    def _pace(self, now: float, wait: float) -> tuple[float, float]:
-        """Wait while the wire is still busy with what was written (P2 in
-        printers/protocol/pacing.py), so one wake-up takes every reply that came
-        meanwhile; never past *wait*, the loop's next deadline. Returns the time
-        after and what is left of *wait*."""
+    def _pace(self, now: float, deadline: float | None) -> tuple[float, float]:
+        """How long the turn may wait for the firmware: until the next deadline or
+        database turn. Waits first while the wire is still busy with what was
+        written (P2 in printers/protocol/pacing.py), so one wake-up takes every
+        reply that came meanwhile; never past that. Returns the time after and
+        what is left of the wait."""
+        # The log's batches ride on the turns (flush_if_due runs every turn): a
+        # wake-up of their own would be one more a quarter second.
+        wake = self.next_poll
+        if deadline is not None and deadline < wake:
+            wake = deadline
+        wait = max(0.0, min(wake - now, self._turn_seconds()))
         until = self.pacer.read_at(now, self.protocol.in_flight)
         if until <= now:
             return now, wait
@@ -329,14 +347,6 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         if more:
             self.pacer.received(more, now)
         return data + more, now
-
-    def _wait_time(self, now: float, deadline: float | None) -> float:
-        # The log's batches ride on the turns (flush_if_due runs every turn): a
-        # wake-up of their own would be one more a quarter second.
-        wake = self.next_poll
-        if deadline is not None:
-            wake = min(wake, deadline)
-        return max(0.0, min(wake - now, self._turn_seconds()))
 
     # -- state -------------------------------------------------------------------
 

@@ -47,8 +47,14 @@ class Reactions:
     def handle_protocol_events(self: PrinterWorker, now: float) -> None:
         # Every line brings three of these (Sent, Received, Ack): told apart by
         # their exact type, the cheapest test, before the rarer kinds.
-        protocol, log = self.protocol, self.log
-        while (event := protocol.next_event()) is not None:
+        # The protocol's event queue itself (`next_event` pops it): two of these a
+        # turn, most finding it empty.
+        events = self.protocol.events
+        if not events:
+            return
+        log = self.log
+        while events:
+            event = events.popleft()
             kind = type(event)
             if kind is ev.Received:
                 log.add(event.text, event.kind)

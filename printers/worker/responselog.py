@@ -80,18 +80,15 @@ class ResponseLog:
         oldest waiting lines make room, and a note in their place says how many.
         """
         self.last_id += 1
-        self._buffer.append((self.last_id, self._stamp(), text, int(kind)))
+        # The line's time: one datetime for lines within STAMP_SECONDS (aware
+        # UTC, as timezone.now() is with USE_TZ, always on, from one reading).
+        wall = time.time()
+        if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
+            self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
+        self._buffer.append((self.last_id, self._stamp_at, text, int(kind)))
         if len(self._buffer) > HELD_LINES:
             self._drop_oldest()
         return self.last_id
-
-    def _stamp(self) -> datetime:
-        """Now, as the time of a line (one datetime for lines within STAMP_SECONDS)."""
-        wall = time.time()
-        if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
-            # Aware UTC, as timezone.now() is with USE_TZ (always on), from one reading.
-            self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
-        return self._stamp_at
 
     def _drop_oldest(self) -> None:
         dropped = len(self._buffer) - HELD_LINES // 2
