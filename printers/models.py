@@ -205,6 +205,9 @@ class Printer(models.Model):
         max_length=16, choices=State.choices, default=State.OFFLINE
     )
     state_message = models.TextField(blank=True)
+    #: An emergency stop's halt (printers/worker/emergency.py) until an operator's
+    #: reconnect ends it: kept here so a worker started again keeps it too.
+    emergency_halt = models.TextField(blank=True, editable=False)
     firmware_name = models.CharField(max_length=255, blank=True)
     capabilities = models.JSONField(default=dict, blank=True)
     temperatures = models.JSONField(default=dict, blank=True)

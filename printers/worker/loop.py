@@ -28,6 +28,7 @@ from printers.transport import (
     TransportClosed,
 )
 from printers.worker import spool
+from printers.worker.emergency import EMERGENCY
 from printers.worker.journal import Journal
 from printers.worker.lease import (
     UNREACHABLE,
@@ -136,7 +137,8 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
             self.note(f"job {job.pk} ({job.name}) {job.message}")
             self.waitstart = True
         self.requests.fail_orphans("the printer's worker stopped before it answered")
-        self.waitstart = self.waitstart or self._was_waiting()
+        waiting, self.halted = self._left_behind()
+        self.waitstart = self.waitstart or waiting
         self.update_state()
         self.status.save_if_due(self.clock(), force=True)
 
@@ -356,6 +358,10 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         self._derive_state()
         if self.status.state != before:
             self.look_for_jobs = True
+        # Kept in the row: a worker started again (a crash, a restart, an upgrade)
+        # must not let the next job start on a printer stopped in an emergency.
+        halt = self.halted if self.halted.startswith(EMERGENCY) else ""
+        self.status.update(emergency_halt=halt)
 
     def _derive_state(self) -> None:
         if self.transport is None:
@@ -386,10 +392,14 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         """A line from printhost itself in the response log (not from the firmware)."""
         self.log.add(f"[printhost] {text}", kind)
 
-    def _was_waiting(self) -> bool:
-        return (
+    def _left_behind(self) -> tuple[bool, str]:
+        """What the previous worker left in the row that still holds: its waitstart
+        (the bed to be cleared) and an emergency stop's halt."""
+        row = (
             Printer.objects.filter(pk=self.printer.pk)
-            .values_list("state", flat=True)
+            .values("state", "emergency_halt")
             .first()
-            == Printer.State.WAITSTART
-        )
+        ) or {"state": "", "emergency_halt": ""}
+        if row["emergency_halt"]:
+            self.note(f"{row['emergency_halt']} (kept from before this worker started)")
+        return row["state"] == Printer.State.WAITSTART, row["emergency_halt"]
