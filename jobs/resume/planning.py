@@ -192,6 +192,19 @@ def make_plan(pk: int) -> str:
             state=ResumePlan.State.FAILED, reason=f"the file cannot be read: {error}"
         )
         return "failed"
+    lost = [axis for axis, offset in zip("XYZ", point.state.g92, strict=True)
+            if offset is None]  # fmt: skip
+    if lost:
+        ResumePlan.objects.filter(pk=pk).update(
+            state=ResumePlan.State.FAILED,
+            reason=(
+                f"the file sets a G92 offset on {', '.join(lost)} after a move "
+                "printhost cannot follow (G53, G28, G30 or a probe) before this "
+                "line: the resume could not put the offset back, and would cut in "
+                "the wrong place; pick a line before that, or run the file again"
+            ),
+        )
+        return "failed"
     machine = point.state.as_dict()
     machine.update(start_offset=offset, stop_z=point.stop_z, warnings=point.warnings)
     if objects is not None:
@@ -232,7 +245,8 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
     state = MachineState.from_dict(at_line)
     stop_z = min(recent) if recent else state.position[2]
     warnings = []
-    if state.position[2] < stop_z - 1e-6:
+    warnings += _unknown_axes(state)
+    if state.known[2] and state.position[2] < stop_z - 1e-6:
         warnings.append(
             f"the resume height ({state.position[2]:g} mm) is below where the print "
             f"stopped ({stop_z:g} mm): the nozzle goes down into what was printed"
@@ -248,6 +262,29 @@ def read_point(job: Job, line: int) -> tuple[ResumePoint, int]:
         warnings=warnings,
     )
     return point, start
+
+
+def _unknown_axes(state: MachineState) -> list[str]:
+    """CNC: what the preamble leaves to the file, for axes a move before the line
+    took where the file's coordinates cannot follow (`StateReader._lose`)."""
+    if state.firmware != "grbl":
+        return []
+    warnings = []
+    if not state.known[2]:
+        warnings.append(
+            "Z at this line is where a G53, G28, G30 or probing move left it, which "
+            "printhost cannot place: the tool stays at the safe height until the "
+            "file's next Z move"
+        )
+    flat = [
+        letter for letter, known in zip("XY", state.known, strict=False) if not known
+    ]
+    if flat:
+        warnings.append(
+            f"{' and '.join(flat)} at this line cannot be placed either: the tool "
+            "goes there with the file's next move, at the safe height"
+        )
+    return warnings
 
 
 def objects_at(job: Job, line: int) -> dict[str, Any] | None:

@@ -15,10 +15,14 @@ may still be hot and homed, and the same commands are harmless):
     G92 E<the file's E at the line>                E as the file expects
     fans, settings, feedrate, modes                as the file left them
 
-A GRBL machine: units and absolute moves, the work coordinate system, homing when
-the machine says to (`$H`), up to a safe height (above the highest Z the file went
-to so far), over the point, spindle on with a spin-up dwell, coolant, down at the
-file's feedrate, then the file's modes and feedrate.
+A GRBL machine: units and absolute moves, the work coordinate system, no G92 offset
+(`G92.1`: a reset clears it, a worker's crash does not), homing when the machine
+says to (`$H`), up to a safe height (above the highest Z the file went to so far),
+over the point, the file's G92 offset again (`G92` with the point's numbers),
+spindle on with a spin-up dwell, coolant, down at the file's feedrate, then the
+file's modes and feedrate. An axis the file's coordinates lost before the line (a
+G53 move in machine coordinates, G28/G30 to a stored position, a probe) is left to
+the file's next move: no plunge to a depth that means something else.
 
 Every line carries a comment saying why; the stream strips comments.
 """
@@ -121,22 +125,47 @@ def _fff(point: ResumePoint) -> list[str]:
 def _cnc(point: ResumePoint) -> list[str]:
     state = point.state
     x, y, z, _ = state.position
+    known_x, known_y, known_z, _ = state.known
+    offsets = [offset or 0.0 for offset in state.g92]  # planning refuses None
     lines = [f"; resume at line {point.line + 1}, Z {number(z)} mm"]
     lines += ["G21 ; millimetres", "G90 ; absolute moves", "G94 ; feed per minute"]
     lines.append(f"G{54 + state.coordinate_system} ; the file's work coordinates")
+    # A reset clears GRBL's G92 offset, a worker's crash does not: cleared either
+    # way, the preamble's moves are in the work coordinates alone, and the file's
+    # offset is set again below once the tool is over a point it knows.
+    lines.append("G92.1 ; no G92 offset until the file's own is set again")
     if point.home_z:
         lines.append("$H ; home (the machine homes on resume)")
-    safe = max(state.top, z) + point.lift
+    top = max(state.top, z + offsets[2]) if known_z else state.top
+    safe = top + point.lift
     lines.append(f"G0 Z{number(safe)} ; a safe height above the work")
-    if state.known[0] or state.known[1]:
-        lines.append(f"G0 X{number(x)} Y{number(y)} ; over the point")
+    over = [
+        f"{letter}{number(value + offset)}"
+        for letter, value, offset, known in zip(
+            "XY", (x, y), offsets, (known_x, known_y), strict=False
+        )
+        if known
+    ]
+    if over:
+        lines.append(f"G0 {' '.join(over)} ; over the point")
+    if any(offsets):
+        here = [
+            f"{letter}{number(value)}"
+            for letter, value, known in zip(
+                "XY", (x, y), (known_x, known_y), strict=False
+            )
+            if known
+        ]
+        here.append(f"Z{number(safe - offsets[2])}")
+        lines.append(f"G92 {' '.join(here)} ; the file's G92 offset again")
     if state.spindle in ("M3", "M4"):
         lines.append(f"{state.spindle} S{number(state.spindle_speed)} ; spindle on")
         lines.append(f"G4 P{number(SPIN_UP_SECONDS)} ; let it reach its speed")
     for coolant in state.coolant:
         lines.append(f"{coolant} ; coolant")
-    plunge = state.feedrate or Z_FEED
-    lines.append(f"G1 Z{number(z)} F{number(plunge)} ; down to the resume depth")
+    if known_z:
+        plunge = state.feedrate or Z_FEED
+        lines.append(f"G1 Z{number(z)} F{number(plunge)} ; down to the resume depth")
     lines += _modes(state)
     return lines
 

@@ -44,6 +44,15 @@ HEATERS = {
     "M141": ("chamber", False),
     "M191": ("chamber", True),
 }
+#: GRBL's probing moves: they stop wherever the probe touches.
+_PROBES = ("G38.2", "G38.3", "G38.4", "G38.5")
+#: Moves that leave the machine where the file's coordinates cannot follow it:
+#: machine coordinates (G53), a stored position (G28, G30), a probe's touch.
+_LOSES_PLACE = frozenset({"G53", "G28", "G30", *_PROBES})
+#: GRBL's non-modal codes whose axis words say something other than where the
+#: block moves (G10 an offset, G28/G30 a stop on the way, G53 machine
+#: coordinates, G92 what the position is to read).
+_USES_AXIS_WORDS = frozenset({"G10", "G28", "G30", "G53", "G92", *_PROBES})
 #: Mesh bed levelling a file switched on (G29 probes; a resume must never probe
 #: with a part on the bed: it switches the stored mesh on instead).
 LEVELLING = frozenset({"G29", "G80", "M420"})
@@ -80,8 +89,13 @@ class MachineState:
     spindle: str = "M5"
     spindle_speed: float = 0.0
     coolant: list[str] = field(default_factory=list)
-    #: The highest Z any move went to (mm): a CNC resume travels above it.
+    #: The highest Z any move went to (mm, in the work coordinates without the
+    #: G92 offset): a CNC resume travels above it.
     top: float = 0.0
+    #: GRBL's G92 offset (X, Y, Z; mm): the file's coordinates are the work
+    #: system's minus it. None for an axis whose offset the file set where the
+    #: reader could not follow the machine (after a G53, G28 or G30 move).
+    g92: list[float | None] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -100,7 +114,9 @@ def words_of(text: str) -> tuple[list[str], dict[str, float]]:
     for place, (letter, number) in enumerate(_WORD.findall(text.upper())):
         # T leads a tool change (`T1`); after a code it is a word (M104 T1, M204 T).
         if letter in "GM" or (letter == "T" and place == 0):
-            codes.append(f"{letter}{int(float(number))}")
+            value = float(number)  # G28.1, G92.1, G38.2 are codes of their own
+            whole = value.is_integer()
+            codes.append(f"{letter}{int(value)}" if whole else f"{letter}{value:g}")
         else:
             words[letter] = float(number)
     return codes, words
@@ -125,10 +141,27 @@ class StateReader:
                 moved = True
                 self.state.motion = code
             self._command(code, words, text)
-        if moved or (self.cnc and not codes and words):
+        if self.cnc and _USES_AXIS_WORDS.intersection(codes):
+            # Their axis words are not the block's move: G53 moves in machine
+            # coordinates, G28 and G30 to a position stored in the machine.
+            if "F" in words and words["F"] > 0:
+                self.state.feedrate = self._scale(words["F"])
+            self._lose(_LOSES_PLACE.intersection(codes), words)
+        elif moved or (self.cnc and not codes and words):
             self._move(words)  # a GRBL block of axis words keeps the last motion
         elif self.cnc and "F" in words:
             self.state.feedrate = self._scale(words["F"])
+
+    def _lose(self, codes: set[str], words: dict[str, float]) -> None:
+        """After a move the file's coordinates cannot follow (`_LOSES_PLACE`),
+        the axes it moved are where the machine is, not anywhere the reader knows."""
+        if not codes:
+            return
+        named = [axis for axis in range(3) if _AXES[axis] in words]
+        if codes & {"G28", "G30"} and not named:
+            named = [0, 1, 2]  # without axis words, every axis goes there
+        for axis in named:
+            self.state.known[axis] = False
 
     def _command(self, code: str, words: dict[str, float], text: str) -> None:
         state = self.state
@@ -208,8 +241,9 @@ class StateReader:
             else:
                 state.position[axis] += value
             state.known[axis] = True
-        if "Z" in words:
-            state.top = max(state.top, state.position[2])
+        offset = state.g92[2] if self.cnc else 0.0
+        if "Z" in words and offset is not None:
+            state.top = max(state.top, state.position[2] + offset)
         if self.cnc and "S" in words:
             state.spindle_speed = words["S"]
 
@@ -221,8 +255,42 @@ class StateReader:
             words = dict.fromkeys(_AXES, 0.0)
         for letter in given:
             axis = _AXES.index(letter)
-            state.position[axis] = self._scale(words[letter])
+            value = self._scale(words[letter])
+            if self.cnc and axis < 3:
+                # The offset that makes the work position read *value* here.
+                offset = state.g92[axis]
+                state.g92[axis] = (
+                    state.position[axis] + offset - value
+                    if state.known[axis] and offset is not None
+                    else None
+                )
+            state.position[axis] = value
             state.known[axis] = True
+
+    def _clear_g92(self) -> None:
+        """G92.1: the work coordinates without the G92 offset again."""
+        state = self.state
+        for axis, offset in enumerate(state.g92):
+            if offset is None:
+                state.known[axis] = False
+            else:
+                state.position[axis] += offset
+        state.g92 = [0.0, 0.0, 0.0]
+
+    def _set_work_offset(self, words: dict[str, float]) -> None:
+        """G10 L2 (the offset itself) or L20 (the offset that makes the position
+        read the words) of a work coordinate system: P0 is the one in use."""
+        state = self.state
+        system = int(words.get("P", 0)) - 1
+        if system not in (-1, state.coordinate_system):
+            return  # another system's: nothing moves in this one
+        for axis in range(3):
+            if _AXES[axis] in words:
+                if words.get("L") == 20:
+                    state.position[axis] = self._scale(words[_AXES[axis]])
+                    state.known[axis] = True
+                else:
+                    state.known[axis] = False
 
     def _home(self, words: dict[str, float]) -> None:
         state = self.state
@@ -244,7 +312,14 @@ class StateReader:
     def _cnc_mode(self, code: str, words: dict[str, float]) -> None:
         state = self.state
         if code in ("G54", "G55", "G56", "G57", "G58", "G59"):
-            state.coordinate_system = int(code[1:]) - 54
+            system = int(code[1:]) - 54
+            if system != state.coordinate_system:
+                state.known[:3] = [False] * 3  # the same spot, other coordinates
+            state.coordinate_system = system
+        elif code == "G92.1":
+            self._clear_g92()
+        elif code == "G10" and words.get("L") in (2, 20):
+            self._set_work_offset(words)
         elif code in ("G93", "G94"):
             state.inverse_time = code == "G93"
         elif code in ("M3", "M4", "M5"):

@@ -102,13 +102,15 @@ class GcodeState:
         self.max_rates = max_rates
         self.position = [0.0, 0.0, 0.0]
         self.offsets = [[0.0, 0.0, 0.0] for _ in range(6)]
-        self.g92 = [0.0, 0.0, 0.0]
         self.g28 = [0.0, 0.0, 0.0]
         self.g30 = [0.0, 0.0, 0.0]
         self.reset_modes()
 
     def reset_modes(self) -> None:
-        """gc_init after a reset: G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0."""
+        """gc_init after a reset: G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0, and no G92
+        offset (GRBL 1.1 zeroes its whole parser state; the stored G54-G59 offsets
+        and the position stay)."""
+        self.g92 = [0.0, 0.0, 0.0]
         self.motion, self.coord, self.plane, self.units = 0, 0, 170, 210
         self.distance, self.feed_mode = 900, 940
         self.spindle, self.coolant = 5, set()

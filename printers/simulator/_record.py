@@ -41,9 +41,10 @@ class Recorder:
 
 def state_text(firmware: object) -> str:
     """The firmware's state as `--record-state` and `stats` give it: X Y Z E for
-    Marlin; GRBL's work position and `$G` modes."""
+    Marlin; GRBL's work position, `$G` modes and machine position (`MPos:`)."""
     gcode = getattr(firmware, "gcode", None)
     if gcode is not None:
         work = [p - o for p, o in zip(gcode.position, gcode.work_offset(), strict=True)]
-        return " ".join(f"{v:.4f}" for v in work) + " " + gcode.modes()
+        machine = ",".join(f"{v:.4f}" for v in gcode.position)
+        return " ".join(f"{v:.4f}" for v in work) + f" {gcode.modes()} MPos:{machine}"
     return " ".join(f"{v:.5f}" for v in firmware.machine.position)  # type: ignore[attr-defined]

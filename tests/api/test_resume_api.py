@@ -196,3 +196,20 @@ def test_a_file_changed_since_the_run_is_not_resumed(keys, stopped) -> None:
     code, body = call("post", "/printer/resume/mk3", keys(), id=stopped.pk)
     assert code == 409 and "changed since the run" in body["error"]
     _nothing_changed(stopped)
+
+
+def test_a_cnc_plan_that_cannot_put_the_files_g92_offset_back_fails_saying_why(
+    keys, make_printer, make_job
+) -> None:
+    """The file zeroed Z with G92 where a machine-coordinate move had left the
+    tool: no resume after it can put that zero back, and a guessed one cuts."""
+    mill = make_printer(slug="mill", firmware="grbl", state="idle")
+    text = "G0 Z5\nG53 G0 Z-1\nG92 Z0\n" + "G1 X1 Z-1 F300\nG1 X2\n" * 20
+    job = make_job(mill, text)
+    analyse(job.analysis_id)
+    Job.objects.filter(pk=job.pk).update(state=Job.State.INTERRUPTED, lines_acked=30)
+    status, body = call("post", "/printer/resume/mill", keys(), id=job.pk)
+    assert status == 200, body
+    assert make_plan(body["data"]["id"]) == "failed"
+    plan = ResumePlan.objects.get(pk=body["data"]["id"])
+    assert "G92 offset on Z" in plan.reason and plan.preamble == ""

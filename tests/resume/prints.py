@@ -50,3 +50,23 @@ def cnc_pocket(passes: int = 6, per_pass: int = 150) -> str:
         lines += ["G0 Z5", "G0 X10 Y10"]
     lines += ["M9", "M5", "G0 Z10"]
     return "\n".join(lines) + "\n"
+
+
+def cnc_zeroed_here(passes: int = 6, per_pass: int = 150) -> str:
+    """A pocket whose file sets its own zero where the tool stands (G92, as
+    "zero here" jobs do) and retracts in machine coordinates (G53) between
+    passes."""
+    lines = [
+        "; generated: a pocket zeroed with G92", "G21 G90 G94", "G54", "G0 Z20",
+        "G0 X15 Y12", "G92 X0 Y0 Z0", "M3 S12000", "G0 Z5", "G0 X10 Y10",
+    ]  # fmt: skip
+    for depth in range(passes):
+        z = -0.5 * (depth + 1)
+        lines += [f"G1 Z{z} F300", "G1 F1200"]
+        for i in range(per_pass):
+            angle = 2 * math.pi * i / per_pass
+            x, y = 20 + 10 * math.cos(angle), 20 + 10 * math.sin(angle)
+            lines.append(f"X{x:.3f} Y{y:.3f}")
+        lines += ["G53 G0 Z30", "G0 X10 Y10"]
+    lines += ["M5", "G53 G0 Z30"]
+    return "\n".join(lines) + "\n"

@@ -15,7 +15,7 @@ from printers.sample_gcode import commands_of
 from printers.worker.journal import Entry, Journal
 from tests.conftest import HOST_COMMANDS, Sim, wait_for
 from tests.hosts import Host
-from tests.resume.prints import cnc_pocket, layered_print
+from tests.resume.prints import cnc_pocket, cnc_zeroed_here, layered_print
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -199,4 +199,25 @@ def test_a_grbl_job_resumes_with_its_modal_state_and_position(tmp_path, sim_fact
     # Work position and every modal group ($G: motion, G55, units, distance,
     # feed mode, spindle, coolant, tool, feed, speed) as the uninterrupted run
     # (GRBL's record gives the state a line left: the preamble's last).
+    assert recorded[line + len(preamble) - 1][1] == run.state_at_stop
+
+
+def test_a_grbl_job_that_set_its_own_zero_resumes_in_the_same_place(
+    tmp_path, sim_factory
+):
+    """GRBL forgets a G92 offset when it resets: a preamble in the file's numbers
+    alone put the tool at the right work position on the wrong spot of the machine
+    (by the offset: a plunge into the stock, or beside it)."""
+    sim = sim_factory(
+        "grbl", "--time-scale", "0", "--baud", "0", "--record-state",
+        "--busy-after", str(STALL_AT), "--busy-seconds", "600",
+    )  # fmt: skip
+    run = Interrupted(tmp_path, sim, cnc_zeroed_here(), "grbl")
+    try:
+        line, preamble = run.resume()
+    finally:
+        run.close()
+    assert "G92.1" in preamble and any(c.startswith("G92 X") for c in preamble)
+    recorded = _job_commands(sim)
+    # Work position, modes and machine position (`MPos:`) as the uninterrupted run.
     assert recorded[line + len(preamble) - 1][1] == run.state_at_stop

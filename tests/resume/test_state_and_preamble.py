@@ -113,6 +113,53 @@ def test_a_cnc_preamble_climbs_above_the_work_and_spins_up_before_going_down():
         firmware="grbl",
     )  # fmt: skip
     sent = commands(_point(state, lift=2.0))
-    assert sent[:6] == ["G21", "G90", "G94", "G55", "G0 Z10", "G0 X4 Y1"]
-    assert sent[6:9] == ["M3 S12000", "G4 P3", "M8"]
-    assert sent[9:] == ["G1 Z-1 F900", "G1 F900"]
+    assert sent[:7] == ["G21", "G90", "G94", "G55", "G92.1", "G0 Z10", "G0 X4 Y1"]
+    assert sent[7:10] == ["M3 S12000", "G4 P3", "M8"]
+    assert sent[10:] == ["G1 Z-1 F900", "G1 F900"]
+
+
+def test_a_cnc_resume_after_a_machine_coordinate_retract_does_not_plunge():
+    """`G53 G0 Z-2` is 2 mm below the machine's top, not 2 mm into the work: read as
+    a work Z, the preamble took the tool down to it, through the stock."""
+    state = state_after(
+        "G0 Z5", "G0 X1 Y1", "M3 S9000", "G1 Z-1 F300", "G1 X4 F900", "G53 G0 Z-2",
+        firmware="grbl",
+    )  # fmt: skip
+    assert state.known[:3] == [True, True, False]
+    sent = commands(_point(state, lift=2.0))
+    assert "G0 Z7" in sent  # above the highest work Z (5), not the machine's -2
+    assert not any(c.startswith("G1 Z") for c in sent)  # left to the file's next Z
+
+
+def test_g28_and_g30_leave_the_axes_they_move_unplaced():
+    assert state_after("G0 X1 Y2 Z3", "G28 G91 Z0", "G90", firmware="grbl").known[
+        :3
+    ] == [True, True, False]
+    assert state_after("G0 X1 Y2 Z3", "G30", firmware="grbl").known[:3] == [False] * 3
+    assert state_after("G0 X1 Y2 Z3", "G28.1", firmware="grbl").known[:3] == [True] * 3
+
+
+def test_a_cnc_preamble_puts_the_files_g92_offset_back_over_the_point():
+    state = state_after(
+        "G0 X20 Y30 Z10", "G92 X0 Y0 Z0", "G1 Z-1 F200", "G1 X5 Y5 F800",
+        firmware="grbl",
+    )  # fmt: skip
+    assert state.g92 == pytest.approx([20.0, 30.0, 10.0])
+    sent = commands(_point(state, lift=2.0))
+    # In the work coordinates alone (G92 cleared): up, over, then the offset again.
+    at = sent.index("G92.1")
+    assert sent[at + 1 : at + 4] == ["G0 Z12", "G0 X25 Y35", "G92 X5 Y5 Z2"]
+    assert "G1 Z-1 F800" in sent
+    assert state_after("G92 X1", "G92.1", firmware="grbl").g92 == [0.0, 0.0, 0.0]
+
+
+def test_an_offset_set_where_the_reader_lost_the_machine_is_unknown():
+    state = state_after("G0 Z5", "G53 G0 Z-1", "G92 Z0", firmware="grbl")
+    assert state.g92[2] is None and state.g92[:2] == [0.0, 0.0]
+
+
+def test_work_offsets_the_file_sets_move_the_position_or_lose_it():
+    assert state_after("G0 X5", "G10 L20 P0 X0", firmware="grbl").position[0] == 0
+    assert not state_after("G0 X5", "G10 L2 P1 X3", firmware="grbl").known[0]
+    assert state_after("G0 X5", "G10 L2 P2 X3", firmware="grbl").known[0]  # G55's
+    assert state_after("G0 X5 Y5 Z5", "G55", firmware="grbl").known[:3] == [False] * 3
