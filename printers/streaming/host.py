@@ -35,6 +35,8 @@ from printers.streaming.streams import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Collection
+
     from printers.protocol.link import LinkProtocol
 
 S = CommandState
@@ -51,9 +53,15 @@ class StreamHost(StreamControl):
         *,
         scripts: dict[str, str] | None = None,
         max_steps: int = 512,
+        after_reset: Collection[str] = (),
     ) -> None:
+        """*after_reset*: scripts the firmware's reset would cancel, which the
+        caller resets it after (GRBL's abort: a feed hold, then a soft reset that
+        empties its buffers): held until `run_held_scripts`."""
         self.protocol = protocol
         self.scripts = dict(scripts or {})
+        self.after_reset = frozenset(after_reset)
+        self.held_scripts: list[str] = []
         self.stream_queue: deque[Stream] = deque()
         self.script_queue: deque[Stream] = deque()
         self.emergency_queue: deque[str] = deque()

@@ -33,7 +33,22 @@ class StreamControl:
     def run_script(
         self: StreamHost, name: str, *, origin: str = "host"
     ) -> Stream | None:
-        """Queue the printer's script *name* (pause, resume, abort...) if it has one."""
+        """Queue the printer's script *name* (pause, resume, abort...) if it has one;
+        one the firmware's coming reset would cancel (`after_reset`) is held until
+        `run_held_scripts`."""
+        if name in self.after_reset:
+            if self.scripts.get(name, "").strip():
+                self.held_scripts.append(name)
+            return None
+        return self._queue_script(name, origin)
+
+    def run_held_scripts(self: StreamHost) -> None:
+        """The firmware reset: queue the scripts held for it, in order."""
+        held, self.held_scripts = self.held_scripts, []
+        for name in held:
+            self._queue_script(name, "host")
+
+    def _queue_script(self: StreamHost, name: str, origin: str) -> Stream | None:
         lines = lines_from_text(self.scripts.get(name, ""))
         if not lines:
             return None

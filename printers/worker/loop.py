@@ -92,7 +92,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         self.requests = RequestPoller(self)
         self.transport: SerialTransport | None = None
         self.protocol: LinkProtocol = protocol_for(self.config)
-        self.host = StreamHost(self.protocol, scripts=printer.scripts())
+        self.host = self.new_host()
         #: What is still on the wire, so one wake-up takes several replies.
         self.pacer = Pacer(printer.baud)
         #: The link's figures, saved with the status (`Printer.link_stats`).
@@ -349,6 +349,16 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
         if more:
             self.pacer.received(more, now)
         return data + more, now
+
+    def new_host(self) -> StreamHost:
+        """The stream host of a connection: the printer's scripts, and on GRBL the
+        abort script held until the soft reset that follows an abort (its lines
+        sent before would be emptied from GRBL's buffer with the job's)."""
+        return StreamHost(
+            self.protocol,
+            scripts=self.printer.scripts(),
+            after_reset={"abort"} if self.printer.is_grbl else (),
+        )
 
     # -- state -------------------------------------------------------------------
 

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 from printers.driver import protocol_for
 from printers.models import Printer
-from printers.streaming import Stream, StreamHost, StreamType, lines_from_text
+from printers.streaming import Stream, StreamType, lines_from_text
 from printers.transport import PortNotAllowed, SerialTransport, TransportError
 from printers.worker.emergency import EMERGENCY
 
@@ -47,7 +47,7 @@ class PortHandling:
         self.pacer.reset()
         self.link.connected(now)
         self.protocol = protocol_for(self.config)
-        self.host = StreamHost(self.protocol, scripts=self.printer.scripts())
+        self.host = self.new_host()
         if not self.halted.startswith(EMERGENCY):
             # An emergency stop ends only by an operator's reconnect: a port that
             # came back by itself (a cable, a reset board) is no one saying so.

@@ -234,6 +234,8 @@ class Reactions:
         if status.get("check_mode"):  # a reset ends GRBL's check mode
             self.status.update(machine_status={**status, "check_mode": False})
         self.hello(now)
+        if not self.halted and self.reset_due is None:
+            self.host.run_held_scripts()  # GRBL's abort script, after its reset
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
         """GRBL executes what it buffered even after an error or an abort: hold the
