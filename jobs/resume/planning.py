@@ -30,7 +30,7 @@ from jobs.hostcache import sha256_of
 from jobs.models import ACTIVE_STATES, FileAnalysis, Job, ResumePlan
 from jobs.paths import PathRefused
 from jobs.resume.preamble import ResumePoint, build_preamble
-from jobs.resume.state import MachineState, StateReader
+from jobs.resume.state import MachineState, StateReader, offsets_lost
 from printers import broadcast
 from printers.models import QueuedCommand
 from printers.reaper import LAST_SAVED
@@ -192,16 +192,15 @@ def make_plan(pk: int) -> str:
             state=ResumePlan.State.FAILED, reason=f"the file cannot be read: {error}"
         )
         return "failed"
-    lost = [axis for axis, offset in zip("XYZ", point.state.g92, strict=True)
-            if offset is None]  # fmt: skip
+    lost = offsets_lost(point.state)
     if lost:
         ResumePlan.objects.filter(pk=pk).update(
             state=ResumePlan.State.FAILED,
             reason=(
-                f"the file sets a G92 offset on {', '.join(lost)} after a move "
-                "printhost cannot follow (G53, G28, G30 or a probe) before this "
-                "line: the resume could not put the offset back, and would cut in "
-                "the wrong place; pick a line before that, or run the file again"
+                f"the file's G92 offset on {', '.join(lost)} cannot be put back at "
+                "this line (the file set it, or the axis moved, where printhost "
+                "cannot follow: a G53, G28, G30 or probing move): the resume would "
+                "cut in the wrong place; pick another line, or run the file again"
             ),
         )
         return "failed"

@@ -126,7 +126,8 @@ def _cnc(point: ResumePoint) -> list[str]:
     state = point.state
     x, y, z, _ = state.position
     known_x, known_y, known_z, _ = state.known
-    offsets = [offset or 0.0 for offset in state.g92]  # planning refuses None
+    # Planning refuses a plan whose offsets cannot be set again (offsets_lost).
+    offsets = [offset or 0.0 for offset in state.g92]
     lines = [f"; resume at line {point.line + 1}, Z {number(z)} mm"]
     lines += ["G21 ; millimetres", "G90 ; absolute moves", "G94 ; feed per minute"]
     lines.append(f"G{54 + state.coordinate_system} ; the file's work coordinates")

@@ -94,7 +94,7 @@ class MachineState:
     top: float = 0.0
     #: GRBL's G92 offset (X, Y, Z; mm): the file's coordinates are the work
     #: system's minus it. None for an axis whose offset the file set where the
-    #: reader could not follow the machine (after a G53, G28 or G30 move).
+    #: reader could not follow the machine (after a G53, G28, G30 or probing move).
     g92: list[float | None] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def as_dict(self) -> dict[str, Any]:
@@ -331,3 +331,14 @@ class StateReader:
                 state.coolant.append(code)
         elif code == "M9":
             state.coolant = []
+
+
+def offsets_lost(state: MachineState) -> list[str]:
+    """CNC: the axes whose G92 offset a preamble cannot set again at the state's
+    line: an offset set where the reader had lost the axis, or one on X or Y with
+    the axis unplaced there (the preamble sets it over the point; Z it places)."""
+    return [
+        letter
+        for letter, offset, known in zip("XYZ", state.g92, state.known, strict=False)
+        if offset is None or (offset and not known and letter != "Z")
+    ]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from jobs.resume.preamble import ResumePoint, build_preamble
-from jobs.resume.state import MachineState, StateReader
+from jobs.resume.state import MachineState, StateReader, offsets_lost
 
 
 def state_after(*commands: str, firmware: str = "marlin") -> MachineState:
@@ -153,9 +153,14 @@ def test_a_cnc_preamble_puts_the_files_g92_offset_back_over_the_point():
     assert state_after("G92 X1", "G92.1", firmware="grbl").g92 == [0.0, 0.0, 0.0]
 
 
-def test_an_offset_set_where_the_reader_lost_the_machine_is_unknown():
+def test_an_offset_that_cannot_be_set_again_is_told_apart():
     state = state_after("G0 Z5", "G53 G0 Z-1", "G92 Z0", firmware="grbl")
     assert state.g92[2] is None and state.g92[:2] == [0.0, 0.0]
+    assert offsets_lost(state) == ["Z"]
+    # An offset on X, with X unplaced at the line: the preamble cannot set it.
+    state = state_after("G0 X5 Y5 Z5", "G92 X0", "G28 X0", firmware="grbl")
+    assert offsets_lost(state) == ["X"]
+    assert offsets_lost(state_after("G0 X5 Z5", "G92 X0", firmware="grbl")) == []
 
 
 def test_work_offsets_the_file_sets_move_the_position_or_lose_it():
