@@ -22,13 +22,12 @@ from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
 from printers.protocol.pacing import Pacer
-from printers.streaming import QueueState, Stream, StreamHost
+from printers.streaming import Stream, StreamHost
 from printers.transport import (
     SerialTransport,
     TransportClosed,
 )
 from printers.worker import spool
-from printers.worker.emergency import EMERGENCY
 from printers.worker.journal import Journal
 from printers.worker.lease import (
     UNREACHABLE,
@@ -45,6 +44,7 @@ from printers.worker.requests import RequestPoller
 from printers.worker.responselog import ResponseLog
 from printers.worker.sdcard import SdCardWatch
 from printers.worker.spooling import Spooling
+from printers.worker.states import PrinterStates
 from printers.worker.status import PrinterStatus
 from printers.worker.turns import DatabaseTurns
 from printers.worker.wakeup import Wakeups
@@ -57,7 +57,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger("printhost.worker")
 
 
-class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
+class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterStates):
     """Drives one printer: owns its port, protocol, stream host and database rows."""
 
     def __init__(
@@ -360,56 +360,6 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns):
             after_reset={"abort"} if self.printer.is_grbl else (),
         )
 
-    # -- state -------------------------------------------------------------------
-
-    def update_state(self) -> None:
-        """Derive the printer's state from the link, the queues and waitstart."""
-        before = self.status.state
-        self._derive_state()
-        if self.status.state != before:
-            self.look_for_jobs = True
-        # Kept in the row: a worker started again (a crash, a restart, an upgrade)
-        # must not let the next job start on a printer stopped in an emergency.
-        halt = self.halted if self.halted.startswith(EMERGENCY) else ""
-        self.status.update(emergency_halt=halt)
-
-    def _derive_state(self) -> None:
-        if self.transport is None:
-            if self.status.state not in (
-                Printer.State.OFFLINE,
-                Printer.State.CONNECTING,
-            ):
-                self.status.set_state(Printer.State.OFFLINE, "disconnected")
-            return
-        if self.halted:
-            self.status.set_state(Printer.State.ERROR, self.halted)
-            return
-        queue = self.host.queue_state
-        waiting = self.prompts.waiting_for()
-        if queue is QueueState.PROCESSING:
-            self.status.set_state(Printer.State.PRINTING, waiting)
-        elif queue is QueueState.PAUSED:
-            self.status.set_state(Printer.State.PAUSED, waiting)
-        elif self.waitstart:
-            self.status.set_state(
-                Printer.State.WAITSTART,
-                "clear the bed, then confirm to start the next job",
-            )
-        else:
-            self.status.set_state(Printer.State.IDLE, waiting)
-
     def note(self, text: str, kind: int = LineKind.IMPORTANT) -> None:
         """A line from printhost itself in the response log (not from the firmware)."""
         self.log.add(f"[printhost] {text}", kind)
-
-    def _left_behind(self) -> tuple[bool, str]:
-        """What the previous worker left in the row that still holds: its waitstart
-        (the bed to be cleared) and an emergency stop's halt."""
-        row = (
-            Printer.objects.filter(pk=self.printer.pk)
-            .values("state", "emergency_halt")
-            .first()
-        ) or {"state": "", "emergency_halt": ""}
-        if row["emergency_halt"]:
-            self.note(f"{row['emergency_halt']} (kept from before this worker started)")
-        return row["state"] == Printer.State.WAITSTART, row["emergency_halt"]
