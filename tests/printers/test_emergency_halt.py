@@ -1,4 +1,5 @@
-"""An emergency stop's halt outlives its worker: only an operator's reconnect ends it."""
+"""An emergency stop's halt lasts until an operator's reconnect: not a board that
+comes back by itself, nor a worker started again."""
 
 from __future__ import annotations
 
@@ -6,9 +7,10 @@ import pytest
 
 from jobs.commands import emergency_stop, request_action
 from jobs.models import Job
-from printers.models import Printer
+from printers.models import Printer, ResponseLine
 from printers.worker.loop import PrinterWorker
 from tests.conftest import wait_for
+from tests.printers.worker_helpers import job_state, start_worker
 
 pytestmark = pytest.mark.django_db
 
@@ -52,3 +54,39 @@ def test_a_worker_started_again_keeps_the_emergency_stop(
         assert Printer.objects.get(pk=printer.pk).emergency_halt == ""
     finally:
         second.stop()
+
+
+def test_an_emergency_stop_is_ended_by_an_operator_not_by_the_board_coming_back(
+    sim_factory, make_printer, make_job
+):
+    """A board reset (its button, a power blip) or a port that came back by itself
+    is no one saying the machine is safe again: with auto_start, the next job
+    started on it. Only the operator's reconnect ends the stop."""
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "0")
+    printer = make_printer(port=str(sim.link), baud=250000, auto_start=True)
+    worker = start_worker(printer)
+    try:
+        wait_for(lambda: worker.status.state == "idle", 10, "idle", worker.tick)
+        emergency_stop(printer, origin="tester")
+        wait_for(lambda: worker.halted, 10, "the halt", step=worker.tick)
+        job = make_job(printer, "G28\n")
+
+        def starts() -> int:  # Marlin's boot banner
+            worker.log.flush()
+            return ResponseLine.objects.filter(printer=printer, text="start").count()
+
+        before = starts()
+        assert sim.control("reset") == "ok"  # the board comes back by itself
+        wait_for(lambda: starts() > before, 10, "the board's reset", worker.tick)
+        worker.port_lost("unplugged")  # and the port, after its backoff
+        wait_for(lambda: worker.transport is not None, 10, "the port back",
+                 step=worker.tick)  # fmt: skip
+        worker.maybe_claim_job(worker.clock())
+        assert worker.halted.startswith("emergency stop by tester")
+        assert job_state(job).state == "queued"
+
+        request_action(printer, "reconnect", origin="tester")
+        wait_for(lambda: job_state(job).state != "queued", 20, "the job to start",
+                 step=worker.tick)  # fmt: skip
+    finally:
+        worker.stop()
