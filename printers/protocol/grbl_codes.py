@@ -16,12 +16,16 @@ __all__ = [
     "error_meaning",
     "is_eeprom_write",
     "jog_line",
+    "line_traits",
 ]
 
 #: `$n=`, `$Nn=`, `$I=`, `$RST=`: system commands that store something.
 _SETTING_WRITE = re.compile(r"\$(\d+|N\d*|I|RST)=", re.IGNORECASE)
 #: One G-code word, letter and number, in a line without spaces.
 _WORD = re.compile(r"([A-Z])([-+]?\d*\.?\d*)")
+#: Every G4, G10, G28.1 and G30.1 matches (spaces taken out first): a line that
+#: does not is neither an EEPROM write nor a dwell, without reading its words.
+_MAYBE_WRITE_OR_DWELL = re.compile(r"G[-+]?0*(?:4|10|28\.|30\.)", re.IGNORECASE)
 
 
 #: `error:N` replies: the line was refused and did nothing.
@@ -147,23 +151,31 @@ def is_eeprom_write(text: str) -> bool:
     GRBL turns its RX interrupt off while it writes EEPROM: bytes arriving then are
     lost, so these commands must travel alone (send-response).
     """
-    if text.lstrip().startswith("$"):
-        return _SETTING_WRITE.match(text.lstrip()) is not None
-    words = _words(text)
-    g_codes = {value for letter, value in words if letter == "G"}
-    if 10 in g_codes and any(
-        letter == "L" and value in (2, 20) for letter, value in words
-    ):
-        return True
-    return bool(g_codes & {28.1, 30.1})
+    return line_traits(text)[0]
 
 
 def dwell_seconds(text: str) -> float:
     """Seconds a `G4 P<s>` line dwells (GRBL reads P as seconds); 0 for other lines."""
+    return line_traits(text)[1]
+
+
+def line_traits(text: str) -> tuple[bool, float]:
+    """`is_eeprom_write` and `dwell_seconds` of one line, its words read once (the
+    protocol asks both of every line it sends)."""
+    stripped = text.lstrip()
+    if stripped.startswith("$"):
+        return _SETTING_WRITE.match(stripped) is not None, 0.0
+    if _MAYBE_WRITE_OR_DWELL.search(text.replace(" ", "")) is None:
+        return False, 0.0
     words = _words(text)
-    if text.lstrip().startswith("$") or ("G", 4.0) not in words:
-        return 0.0
-    return max([0.0, *(value for letter, value in words if letter == "P")])
+    g_codes = {value for letter, value in words if letter == "G"}
+    writes = bool(g_codes & {28.1, 30.1}) or (
+        10 in g_codes
+        and any(letter == "L" and value in (2, 20) for letter, value in words)
+    )
+    if 4 not in g_codes:
+        return writes, 0.0
+    return writes, max([0.0, *(value for letter, value in words if letter == "P")])
 
 
 def _words(text: str) -> list[tuple[str, float]]:

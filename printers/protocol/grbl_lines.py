@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from printers.protocol.errors import CommandRejected
-from printers.protocol.grbl_codes import dwell_seconds, is_eeprom_write
+from printers.protocol.grbl_codes import line_traits
 
 __all__ = ["Line", "check_settings", "prepare_line"]
 
@@ -32,13 +32,19 @@ def prepare_line(
 ) -> Line:
     """*text* ready for the wire; CommandRejected when GRBL cannot take it."""
     wire = _wire_text(text, max_line_length, compact=compact)
-    return Line(wire, tag, is_eeprom_write(wire), dwell_seconds(wire))
+    return Line(wire, tag, *line_traits(wire))
 
 
 def _wire_text(text: str, max_line_length: int, *, compact: bool) -> str:
     if not text.strip():
         raise CommandRejected("empty command: there is nothing to send")
-    if text.isascii() and text.isprintable() and not any(c in text for c in "?!~"):
+    if (
+        text.isascii()
+        and text.isprintable()
+        and "?" not in text
+        and "!" not in text
+        and "~" not in text
+    ):
         return _checked_length(
             _compacted(text.strip(), compact=compact), max_line_length
         )
@@ -68,7 +74,7 @@ def _checked_length(wire: str, max_line_length: int) -> str:
 def _compacted(text: str, *, compact: bool) -> str:
     # Spaces are free for GRBL to ignore but cost buffer bytes. `$` lines (stored
     # startup lines, build info), comments and quoted text keep theirs.
-    if not compact or text.startswith("$") or any(c in text for c in "(\"'"):
+    if not compact or text.startswith("$") or "(" in text or '"' in text or "'" in text:
         return text
     return text.replace(" ", "")
 

@@ -233,6 +233,10 @@ def test_realtime_commands_are_single_bytes_grbl_knows() -> None:
         ("G28.2", False),
         ("G1 X28.1", False),
         ("G1 X1 (G10 L2 is not here)", False),
+        ("G 10 L 20 P1 X0", True),  # spaces GRBL ignores: the quick screen must too
+        ("G010 L2 P1 X0", True),
+        ("g28.1", True),
+        ("G 30 .1", True),
     ],
 )
 def test_it_knows_which_commands_write_eeprom(text: str, writes: bool) -> None:
@@ -251,6 +255,11 @@ def test_it_knows_which_commands_write_eeprom(text: str, writes: bool) -> None:
         ("G40", 0.0),
         ("G1 X4 P9", 0.0),
         ("$N0=G4P10", 0.0),
+        ("G 4 P7", 7.0),  # spaces GRBL ignores: the quick screen must too
+        ("G0004 P8", 8.0),
+        ("G+4 P9", 9.0),
+        ("G4.0 P1", 1.0),
+        ("G1 X1 G4 P2", 2.0),
     ],
 )
 def test_it_reads_dwell_seconds(text: str, seconds: float) -> None:
