@@ -51,9 +51,9 @@ O10. A run resumed mid-file starts where the file's own lines left the filter
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from printers.streaming.object_marks import ObjectMark, object_mark, object_name
 from printers.streaming.streams import Line
 
 if TYPE_CHECKING:
@@ -61,13 +61,6 @@ if TYPE_CHECKING:
 
 __all__ = ["ObjectFilter", "ObjectMark", "object_mark"]
 
-#: Longest object name kept (the analysis cuts at the same length).
-MAX_NAME = 200
-
-_PRINTING = re.compile(
-    r"^\s*;\s*printing object\s+(.+?)\s*(?:id:\d+\s+copy\s+\d+)?\s*$", re.I
-)
-_STOP = re.compile(r"^\s*;\s*stop printing object\b", re.I)
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 #: A command's arguments as most lines write them (`_words`).
 _PLAIN_WORDS = re.compile(r"[A-Z][-+]?[0-9.]+(?: [A-Z][-+]?[0-9.]+)*")
@@ -79,38 +72,14 @@ _M486_ID = re.compile(r"^\s*M486\s*S\s*(-?\d+)", re.I)
 _XYZ = "XYZ"
 
 
-@dataclass(frozen=True, slots=True)
-class ObjectMark:
-    """A marker comment: *name* starts printing, or None: the object stops."""
-
-    name: str | None
-
-
-def object_mark(raw: bytes) -> ObjectMark | None:
-    """The marker a raw file line holds (rule O2), or None for any other line.
-
-    Cheap for the lines that are not markers: the reader calls it only for lines
-    that send nothing (comments, blank lines).
-    """
-    if b"object" not in raw:
-        return None
-    text = raw.decode("utf-8", "replace")
-    if _STOP.match(text):
-        return ObjectMark(None)
-    found = _PRINTING.match(text)
-    if found is None:
-        return None
-    return ObjectMark(_name(found.group(1)))
-
-
-def _name(text: str) -> str:
-    return text.strip().strip("\"'").strip()[:MAX_NAME]
-
-
 def _number(value: float) -> str:
     """A coordinate as G-code writes it: no exponent, no trailing zeros."""
     text = f"{value:.5f}".rstrip("0").rstrip(".")
     return "0" if text in ("", "-0") else text
+
+
+#: Plain moves followed at a time (`ObjectFilter._catch_up`).
+FOLLOW_BATCH = 64
 
 
 class ObjectFilter:
@@ -154,6 +123,8 @@ class ObjectFilter:
         self._head_f: float | None = None
         self._skipped_any = False
         self._prev = Line(-1, "", 0)
+        #: Plain moves yielded whose positions are not followed yet (`_catch_up`).
+        self._unfollowed: list[str] = []
         if place:
             self._take_place(place)
 
@@ -187,17 +158,33 @@ class ObjectFilter:
     # -- reading -----------------------------------------------------------------
 
     def __iter__(self) -> Iterator[Line]:
+        unfollowed = self._unfollowed
         for entry in self._entries:
             if isinstance(entry, ObjectMark):
+                self._catch_up()
                 yield from self._enter(entry.name)
                 continue
             head = entry.text[:3]
             if (head == "G1 " or head == "G0 ") and self._plain():
-                self._follow(entry.text[3:])
+                # Followed later, in a batch (a plain move changes nothing
+                # `_plain` asks): one line goes a turn, and code run once a turn
+                # runs with the processor's caches cold.
+                unfollowed.append(entry.text)
+                if len(unfollowed) >= FOLLOW_BATCH:
+                    self._catch_up()
                 yield entry
             else:
+                self._catch_up()
                 yield from self._line(entry)
             self._prev = entry
+
+    def _catch_up(self) -> None:
+        """Follow the plain moves yielded since the last catch-up, in order: before
+        anything that reads the positions, E or the feedrate."""
+        if self._unfollowed:
+            for text in self._unfollowed:
+                self._follow(text[3:])
+            self._unfollowed.clear()
 
     def _plain(self) -> bool:
         """Nothing skipped and nothing owed (no E lag, the feedrate sent): a move
@@ -257,7 +244,7 @@ class ObjectFilter:
     def _m486(self, text: str) -> Iterator[Line]:
         named = _M486_NAME.match(text)
         if named is not None:
-            name = _name(named.group(1))
+            name = object_name(named.group(1))
             if self._m486_current >= 0:
                 self._m486_names[self._m486_current] = name
                 self.m486_ids.setdefault(name, self._m486_current)
@@ -365,7 +352,7 @@ def _klipper_label(text: str) -> str | None:
     head = text.lstrip()[:20].upper()
     if head == "EXCLUDE_OBJECT_START":
         found = _NAME.search(text)
-        return _name(found.group(1)) if found is not None else None
+        return object_name(found.group(1)) if found is not None else None
     if head.startswith("EXCLUDE_OBJECT_END"):
         return ""
     return None

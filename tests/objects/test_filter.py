@@ -306,3 +306,28 @@ def test_the_quick_reading_of_words_agrees_with_the_pattern_on_any_text(args):
 
     expected = {letter.upper(): float(value) for letter, value in _WORD.findall(args)}
     assert _words(args) == expected
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 400), st.sampled_from([1, 7, 64]))
+def test_moves_followed_in_batches_send_what_moves_followed_one_by_one_send(
+    cancel_at, batch
+):
+    """Plain moves are followed a batch at a time (FOLLOW_BATCH): a cancel after
+    any of them sends the same lines as following each move at once."""
+    import printers.streaming.objects as module
+
+    moves = [f"G1 X{i % 37} Y{i % 23} E{i * 0.05:.2f}" for i in range(300)]
+    text = "\n".join(["G90", "M82", "; printing object B", *moves,
+                      "; stop printing object B", "G1 X1 Y1 F900"]) + "\n"  # fmt: skip
+    eager_batch, module.FOLLOW_BATCH = module.FOLLOW_BATCH, 1
+    try:
+        _, eager = run(entries_of(text), cancel_at=cancel_at)
+    finally:
+        module.FOLLOW_BATCH = eager_batch
+    module.FOLLOW_BATCH = batch
+    try:
+        _, batched = run(entries_of(text), cancel_at=cancel_at)
+    finally:
+        module.FOLLOW_BATCH = eager_batch
+    assert texts(batched) == texts(eager)
