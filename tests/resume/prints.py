@@ -40,14 +40,7 @@ def cnc_pocket(passes: int = 6, per_pass: int = 150) -> str:
         "; generated: a pocket", "G10 L2 P2 X5 Y5 Z-2", "G21 G90 G94", "G55",
         "M3 S12000", "M8", "G0 Z5", "G0 X10 Y10",
     ]  # fmt: skip
-    for depth in range(passes):
-        z = -0.5 * (depth + 1)
-        lines += [f"G1 Z{z} F300", "G1 F1200"]
-        for i in range(per_pass):
-            angle = 2 * math.pi * i / per_pass
-            x, y = 30 + 20 * math.cos(angle), 30 + 20 * math.sin(angle)
-            lines.append(f"X{x:.3f} Y{y:.3f}")
-        lines += ["G0 Z5", "G0 X10 Y10"]
+    lines += _passes(passes, per_pass, centre=30, radius=20, retract="G0 Z5")
     lines += ["M9", "M5", "G0 Z10"]
     return "\n".join(lines) + "\n"
 
@@ -60,13 +53,23 @@ def cnc_zeroed_here(passes: int = 6, per_pass: int = 150) -> str:
         "; generated: a pocket zeroed with G92", "G21 G90 G94", "G54", "G0 Z20",
         "G0 X15 Y12", "G92 X0 Y0 Z0", "M3 S12000", "G0 Z5", "G0 X10 Y10",
     ]  # fmt: skip
+    lines += _passes(passes, per_pass, centre=20, radius=10, retract="G53 G0 Z30")
+    lines += ["M5", "G53 G0 Z30"]
+    return "\n".join(lines) + "\n"
+
+
+def _passes(
+    passes: int, per_pass: int, *, centre: float, radius: float, retract: str
+) -> list[str]:
+    """Down half a millimetre a pass, once around the circle, then *retract*."""
+    lines = []
     for depth in range(passes):
         z = -0.5 * (depth + 1)
         lines += [f"G1 Z{z} F300", "G1 F1200"]
         for i in range(per_pass):
             angle = 2 * math.pi * i / per_pass
-            x, y = 20 + 10 * math.cos(angle), 20 + 10 * math.sin(angle)
+            x = centre + radius * math.cos(angle)
+            y = centre + radius * math.sin(angle)
             lines.append(f"X{x:.3f} Y{y:.3f}")
-        lines += ["G53 G0 Z30", "G0 X10 Y10"]
-    lines += ["M5", "G53 G0 Z30"]
-    return "\n".join(lines) + "\n"
+        lines += [retract, "G0 X10 Y10"]
+    return lines

@@ -18,6 +18,7 @@ from tests.hosts import Host
 from tests.resume.prints import cnc_pocket, cnc_zeroed_here, layered_print
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
 pytestmark = pytest.mark.slow
@@ -178,16 +179,25 @@ def test_a_job_resumes_from_a_chosen_layer(marlin_run):
     assert found == pytest.approx(_position(first_pass[line][1]), abs=1e-4)
 
 
-def test_a_grbl_job_resumes_with_its_modal_state_and_position(tmp_path, sim_factory):
+def _grbl_resumed(
+    tmp_path: Path, sim_factory: Callable[..., Sim], text: str
+) -> tuple[Sim, Interrupted, int, list[str]]:
+    """*text* run on GRBL until it stalls, then resumed at the stop (a power cut
+    between): the simulator, the run, its start line and preamble."""
     sim = sim_factory(
         "grbl", "--time-scale", "0", "--baud", "0", "--record-state",
         "--busy-after", str(STALL_AT), "--busy-seconds", "600",
     )  # fmt: skip
-    run = Interrupted(tmp_path, sim, cnc_pocket(), "grbl")
+    run = Interrupted(tmp_path, sim, text, "grbl")
     try:
         line, preamble = run.resume()
     finally:
         run.close()
+    return sim, run, line, preamble
+
+
+def test_a_grbl_job_resumes_with_its_modal_state_and_position(tmp_path, sim_factory):
+    sim, run, line, preamble = _grbl_resumed(tmp_path, sim_factory, cnc_pocket())
     commands = commands_of(run.text)
 
     recorded = _job_commands(sim)
@@ -208,15 +218,7 @@ def test_a_grbl_job_that_set_its_own_zero_resumes_in_the_same_place(
     """GRBL forgets a G92 offset when it resets: a preamble in the file's numbers
     alone put the tool at the right work position on the wrong spot of the machine
     (by the offset: a plunge into the stock, or beside it)."""
-    sim = sim_factory(
-        "grbl", "--time-scale", "0", "--baud", "0", "--record-state",
-        "--busy-after", str(STALL_AT), "--busy-seconds", "600",
-    )  # fmt: skip
-    run = Interrupted(tmp_path, sim, cnc_zeroed_here(), "grbl")
-    try:
-        line, preamble = run.resume()
-    finally:
-        run.close()
+    sim, run, line, preamble = _grbl_resumed(tmp_path, sim_factory, cnc_zeroed_here())
     assert "G92.1" in preamble and any(c.startswith("G92 X") for c in preamble)
     recorded = _job_commands(sim)
     # Work position, modes and machine position (`MPos:`) as the uninterrupted run.
