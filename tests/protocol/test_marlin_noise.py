@@ -9,8 +9,8 @@ from printers.protocol.marlin import MarlinProtocol
 from printers.protocol.marlin_responses import split_merged
 from printers.sample_gcode import commands_of, segments
 from printers.simulator.faults import FaultConfig
+from tests.protocol.marlin_helpers import CHECKSUM_ERROR, events, meaning
 from tests.protocol.marlin_link import run_link
-from tests.protocol.test_marlin import CHECKSUM_ERROR, events, meaning
 
 JOB = commands_of(segments(100))
 

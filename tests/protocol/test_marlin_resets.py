@@ -7,7 +7,7 @@ import pytest
 from printers.protocol.checksum import format_line
 from printers.protocol.events import Ack, FirmwareReset, ResendServed, Sent
 from printers.protocol.marlin import MarlinProtocol
-from tests.protocol.test_marlin import (
+from tests.protocol.marlin_helpers import (
     CHECKSUM_ERROR,
     JOB,
     TinyMarlin,
