@@ -9,7 +9,7 @@ from printers.protocol.errors import LocalProtocolError
 from printers.protocol.events import Ack, FirmwareInfo, LinkFailed, Received, Sent
 from printers.protocol.grbl import GrblProtocol
 from printers.protocol.grbl_events import BuildOptions, CheckMode
-from tests.protocol.test_grbl import EEPROM_WRITES, drain, fill, make
+from tests.protocol.grbl_helpers import EEPROM_WRITES, drain, fill, make
 
 
 def answer_all(protocol: GrblProtocol, now: float) -> None:
