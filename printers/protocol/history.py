@@ -40,7 +40,7 @@ class LineHistory:
 
     def append(self, n: int, text: str) -> None:
         """Store line *n*; it must follow the last one (ValueError otherwise)."""
-        if n != self._first + len(self._ends):  # self.last + 1
+        if n != self.last + 1:
             raise ValueError(f"line {n} does not follow line {self.last}")
         self._data += text.encode("ascii")
         self._ends.append(len(self._data))

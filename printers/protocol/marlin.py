@@ -310,10 +310,7 @@ class MarlinProtocol(Sending, ReplyHandling):
 
     def receive_data(self, data: bytes, now: float) -> None:
         """Feed firmware bytes; b"" only means nothing arrived (the clock still moves)."""
-        window = self._window
-        window.clock = now  # window.advance(now), whose drain check is below
-        if window.drain_until is not None:
-            window.advance(now)
+        self._window.advance(now)
         if data:
             lines = _NEWLINES.split(self._rx + data)
             self._rx = lines.pop()
@@ -327,12 +324,7 @@ class MarlinProtocol(Sending, ReplyHandling):
                     continue
                 for part in split_merged(text) if text else ():
                     self._handle_line(part)
-        if (
-            window.queued
-            or window.rewind_next < window.rewind_end
-            or window.rewind_tags
-        ):
-            window.pump(self._max_lines())  # _pump, its test spelled out
+        self._pump()
 
     def next_event(self) -> Event | None:
         """The next event, or None when more data is needed."""

@@ -102,7 +102,7 @@ class Recovery(Deadlines):
 
     def ok(self, n: int | None, *, temperatures: bool = False) -> None:
         """`ok` or `ok N<n>`: T3, R1, R1b, T5, then acknowledge what it answers."""
-        self._last_progress = self._window.clock  # progress()
+        self.progress()
         self._consecutive_timeouts = 0
         settled = not self.awaiting_ok and self._held_ok is None
         if temperatures and settled and self._ack_through_probe():

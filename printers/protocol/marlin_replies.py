@@ -65,12 +65,7 @@ class ReplyHandling:
             number, free = int(match[1]), int(match[2])
         self._file_list = False
         self._events.append(Received(text, LineKind.ACK))
-        # _ok, spelled out (nearly every line comes here).
-        if free is not None:
-            self._advanced = True
-            if not self._recovery.awaiting_ok:
-                self._max_b = max(self._max_b, free)
-        self._recovery.ok(number)
+        self._ok(number, free, advanced=free is not None, temperatures=False)
         # What the resend rules ask of the line before a Resend is its kind.
         self._previous = PLAIN_OK
         return True

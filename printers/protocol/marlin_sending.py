@@ -40,13 +40,7 @@ class Sending:
         the same command (offered again each turn while the window has no room for
         it), so it is framed once."""
         line = self._asked
-        # F1: whether a command sent now is numbered.
-        checksums = self._checksums
-        numbered = (
-            checksums == "always"
-            or (checksums == "printing" and self.printing)
-            or self.writing_file
-        )
+        numbered = self._numbering()
         if (
             line is None
             or line.text != text
@@ -86,10 +80,8 @@ class Sending:
         """`send` when `can_send` would say yes, framing the line once; False (the
         line left out) when the window has no room for it now."""
         window = self._window
-        window.clock = now  # window.advance(now), whose drain check is below
-        if window.drain_until is not None:
-            window.advance(now)
-        if window.queued or window.rewind_next < window.rewind_end:
+        window.advance(now)
+        if window.queued or window.rewinding:
             return False
         live = window.live
         most = 1
@@ -134,13 +126,8 @@ class Sending:
 
     def data_to_send(self: MarlinProtocol) -> bytes:
         """All pending wire bytes (emergency lines first); emits Sent for each line."""
+        self._pump()
         window = self._window
-        if (
-            window.queued
-            or window.rewind_next < window.rewind_end
-            or window.rewind_tags
-        ):
-            window.pump(self._max_lines())  # _pump, its test spelled out
         if window.outbox:
             self._recovery.awaiting_ok = False  # R1: the hold is over, no ok came
         elif not window.urgent:
@@ -150,9 +137,15 @@ class Sending:
         for line in lines:
             events.append(Sent(line.wire, line.number, line.resend))
         self.lines_sent += len(lines)
-        if len(lines) == 1:
-            return f"{lines[0].wire}\n".encode("ascii")
         return "".join([f"{line.wire}\n" for line in lines]).encode("ascii")
+
+    def _numbering(self: MarlinProtocol) -> bool:
+        """F1: whether a command sent now is numbered."""
+        return (
+            self._checksums == "always"
+            or (self._checksums == "printing" and self.printing)
+            or self.writing_file
+        )
 
     def _max_lines(self: MarlinProtocol) -> int:
         """W2: how many lines may be live at once in the flow mode in force
@@ -175,7 +168,7 @@ def _validate(text: str) -> str:
     stripped = text.strip()
     if not stripped:
         raise CommandRejected(f"empty command {text!r}: there is nothing to send")
-    if stripped[:1] in ("N", "n") and has_own_number(stripped):
+    if has_own_number(stripped):
         # `N7 M110 N500*127` framed again would set the firmware's line number
         # behind the host's back: every later line would be out of step.
         raise CommandRejected(

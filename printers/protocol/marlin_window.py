@@ -156,8 +156,6 @@ class LineWindow:
             number = line.m110
         elif line.resend:
             number = line.number
-        elif not self.queued:  # _projected_number's usual case
-            number = 1 if self.need_m110 else self.next_n
         else:
             number = self._projected_number(line)
         if line.wire and number == line.number:
@@ -267,12 +265,7 @@ class LineWindow:
         """*line*, framed, goes live now: the pump's step for the head of an empty
         queue, for a line the caller found room for (room_for) with nothing queued,
         re-sent or owed (an M110) before it."""
-        number = line.number
-        if number is not None and line.m110 is None:  # _number's usual case
-            self.history.append(number, line.text)
-            self.next_n = number + 1
-        else:
-            self._number(line)
+        self._number(line)
         self.live.append(line)
         self.outbox.append(line)
         if self.rewind_tags:

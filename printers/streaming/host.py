@@ -247,16 +247,6 @@ class StreamHost(StreamControl):
         # so the stream is still the active one (the same for the chains below).
         return self._send_line(stream, line, now)
 
-    def _on_read_cursor(self, stream: Stream, now: float) -> bool:
-        line = self._pending[stream.id]
-        if line.text.startswith("[ESP"):
-            stream.move(S.SEND_ESP_COMMAND)
-            return True
-        return self._send_line(stream, line, now)
-
-    def _on_send_gcode_command(self, stream: Stream, now: float) -> bool:
-        return self._send_line(stream, self._pending[stream.id], now)
-
     def _send_line(self, stream: Stream, line: Line, now: float) -> bool:
         """READ_CURSOR and SEND_GCODE_COMMAND in one step: the protocol takes the
         line now (`offer`), or the stream waits for room with it pending.

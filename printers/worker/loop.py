@@ -235,8 +235,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
         deadline = protocol.next_deadline()
         now, wait = self._pace(now, deadline)
         wake_by = now + wait
-        if lease.lost or now >= lease.valid_until:
-            lease.ensure(now)
+        lease.ensure(now)
         try:
             data = transport.read(wait, wake=self.wakeups.fileno())
             now = self.clock()
@@ -297,9 +296,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
             self.handle_host_events(now)
         data = protocol.data_to_send()
         if data:
-            lease = self.lease
-            if lease.lost or now >= lease.valid_until:
-                lease.ensure(now)
+            self.lease.ensure(now)
             # Timed before the write: writing wakes the reader, which may take
             # this CPU at once, so a time read after it can be late by a lot.
             written_at = self.clock()
