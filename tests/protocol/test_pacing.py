@@ -129,17 +129,22 @@ def test_p5_a_lone_line_is_read_when_its_reply_can_be_whole() -> None:
 
 def test_p5_a_cut_reply_teaches_how_long_the_firmware_takes_to_answer() -> None:
     pacer = Pacer(BAUD)
-    pacer.wrote(40, 1.0)
-    on_wire = 1.0 + 40 * BYTE
-    pacer.read_at(1.0, lines_in_flight=1)
-    # The reply started 0.5 ms after the line left: 3 bytes of it are in.
-    pacer.received(b"ok ", on_wire + 0.0005 + 3 * BYTE)
-    assert pacer.lag == pytest.approx(0.0005)
-    pacer.received(b"N1 P15 B3\n", 1.01)  # only the first read after the wait teaches
-    assert pacer.lag == pytest.approx(0.0005)
-    pacer.wrote(40, 2.0)
-    wake = pacer.read_at(2.0, lines_in_flight=1)
-    assert wake == pytest.approx(2.0 + 40 * BYTE + pacer.reply_bytes * BYTE + 0.0005)
+    lags = []
+    for n in range(12):
+        now = float(n)
+        pacer.wrote(40, now)
+        on_wire = now + 40 * BYTE
+        assert pacer.read_at(now, lines_in_flight=1) > now  # a wait, not a sample
+        # The reply started 0.5 ms after the line left: 3 bytes of it are in.
+        pacer.received(b"ok ", on_wire + 0.0005 + 3 * BYTE)
+        pacer.received(b"N1 P15 B3\n", now + 0.01)  # only the first read teaches
+        lags.append(pacer.lag)
+    assert lags[0] == pytest.approx(pacing.LAG_RISE * 0.0005)
+    assert lags == sorted(lags)  # each cut read moves it on, never past the answer
+    assert 0.00047 < lags[-1] < 0.0005
+    pacer.wrote(40, 20.0)
+    wake = pacer.read_at(20.0, lines_in_flight=1)
+    assert wake == pytest.approx(20.0 + 40 * BYTE + pacer.reply_bytes * BYTE + lags[-1])
 
 
 def test_p5_a_long_command_teaches_nothing() -> None:
@@ -199,7 +204,9 @@ def test_p5_one_slow_answer_is_forgotten_at_the_next_sample() -> None:
     pacer.wrote(38, now)
     pacer.read_at(now, lines_in_flight=1)
     pacer.received(b"o", pacer.busy_until + 0.02)  # one answer 20 ms late, cut
-    assert pacer.lag == pytest.approx(0.02, abs=BYTE)
+    # It moves the wait a quarter of the way: the lines after it are not all
+    # held back by 20 ms for one slow answer.
+    assert pacer.lag == pytest.approx(pacing.LAG_RISE * 0.02, abs=BYTE)
     for _ in range(pacing.PROBE_EVERY):  # then answers 0.2 ms after each line
         now += 0.05
         pacer.wrote(38, now)
