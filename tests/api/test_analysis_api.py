@@ -16,7 +16,7 @@ from jobs.eta import estimate
 from jobs.models import FileAnalysis, Job
 from jobs.services import enqueue_job
 from printers.models import Printer
-from tests.api.test_printer_api import call
+from tests.api.printer_api_helpers import call
 
 PRUSA = (
     Path(__file__).resolve().parent.parent

@@ -10,7 +10,7 @@ import pytest
 from jobs.models import Job
 from printers.models import Printer, QueuedCommand
 from printhost.models import AuditEntry
-from tests.api.test_printer_api import call
+from tests.api.printer_api_helpers import call
 
 
 def post(path: str, key: str, body: object) -> tuple[int, dict]:

@@ -10,7 +10,7 @@ from jobs.models import Job
 from jobs.services import enqueue_job
 from printers.models import Printer, QueuedCommand
 from printhost.models import AuditEntry
-from tests.api.test_printer_api import call
+from tests.api.printer_api_helpers import call
 
 CARD = {
     "present": True,

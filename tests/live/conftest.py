@@ -1,9 +1,10 @@
-"""What the live-feed tests share: no relays, a quick reconcile, counted log reads,
-lines in the log and batches of them published."""
+"""What the live-feed tests share: a printer, no relays, a quick reconcile, counted
+log reads, lines in the log and batches of them published."""
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 import pytest
 from channels.db import database_sync_to_async
@@ -12,6 +13,11 @@ from django.utils import timezone
 
 from printers import broadcast, live
 from printers.models import Printer, ResponseLine
+
+
+@pytest.fixture
+def printer(make_printer: Callable[..., Printer]) -> Printer:
+    return make_printer(slug="mk3", state="idle")
 
 
 @pytest.fixture
