@@ -120,6 +120,8 @@ def test_a_revoked_key_is_disconnected_within_seconds(
         await database_sync_to_async(revoke)()
         error = await until(client, "error")
         close = await client.receive_output(timeout=TIMEOUT)
+        # As the browser answers a close: the consumer leaves the printer's relay.
+        await client.disconnect()
         return error, close["code"]
 
     error, code = run(scenario())
