@@ -19,7 +19,7 @@ format: install
 	$(BIN)/ruff check --fix . && $(BIN)/ruff format .
 
 test: install
-	$(BIN)/python -m pytest -n 3 --dist worksteal
+	$(BIN)/python -m pytest -n 3 --dist worksteal --durations=20
 
 test-fast: install
 	$(BIN)/python -m pytest tests/protocol tests/streaming
