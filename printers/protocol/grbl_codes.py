@@ -12,9 +12,7 @@ __all__ = [
     "JOG_CANCEL",
     "REALTIME_COMMANDS",
     "alarm_meaning",
-    "dwell_seconds",
     "error_meaning",
-    "is_eeprom_write",
     "jog_line",
     "line_traits",
 ]
@@ -145,23 +143,15 @@ def alarm_meaning(code: int) -> str:
     return ALARMS.get(code, f"unknown alarm code {code}")
 
 
-def is_eeprom_write(text: str) -> bool:
-    """True for `$n=`, `$Nn=`, `$I=`, `$RST=`, G10 L2/L20, G28.1, G30.1.
-
-    GRBL turns its RX interrupt off while it writes EEPROM: bytes arriving then are
-    lost, so these commands must travel alone (send-response).
-    """
-    return line_traits(text)[0]
-
-
-def dwell_seconds(text: str) -> float:
-    """Seconds a `G4 P<s>` line dwells (GRBL reads P as seconds); 0 for other lines."""
-    return line_traits(text)[1]
-
-
 def line_traits(text: str) -> tuple[bool, float]:
-    """`is_eeprom_write` and `dwell_seconds` of one line, its words read once (the
-    protocol asks both of every line it sends)."""
+    """Whether one line writes GRBL's EEPROM, and the seconds it dwells, its words
+    read once (the protocol asks both of every line it sends).
+
+    EEPROM writes are `$n=`, `$Nn=`, `$I=`, `$RST=`, G10 L2/L20, G28.1 and G30.1:
+    GRBL turns its RX interrupt off while it writes, bytes arriving then are lost,
+    so these commands must travel alone (send-response). A `G4 P<s>` line dwells
+    P seconds (GRBL reads P as seconds); other lines 0.
+    """
     stripped = text.lstrip()
     if stripped.startswith("$"):
         return _SETTING_WRITE.match(stripped) is not None, 0.0

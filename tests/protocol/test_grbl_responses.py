@@ -17,9 +17,8 @@ from printers.protocol.grbl_codes import (
     ERRORS,
     REALTIME_COMMANDS,
     alarm_meaning,
-    dwell_seconds,
     error_meaning,
-    is_eeprom_write,
+    line_traits,
 )
 from printers.protocol.grbl_events import (
     BuildOptions,
@@ -240,7 +239,7 @@ def test_realtime_commands_are_single_bytes_grbl_knows() -> None:
     ],
 )
 def test_it_knows_which_commands_write_eeprom(text: str, writes: bool) -> None:
-    assert is_eeprom_write(text) is writes
+    assert line_traits(text)[0] is writes
 
 
 @pytest.mark.parametrize(
@@ -263,4 +262,4 @@ def test_it_knows_which_commands_write_eeprom(text: str, writes: bool) -> None:
     ],
 )
 def test_it_reads_dwell_seconds(text: str, seconds: float) -> None:
-    assert dwell_seconds(text) == seconds
+    assert line_traits(text)[1] == seconds
