@@ -99,6 +99,7 @@ class JobAdmin(admin.ModelAdmin):
             lines_sent=0,
             lines_acked=0,
             bytes_acked=0,
+            progress_at=None,
             message="",
             started_at=None,
             finished_at=None,

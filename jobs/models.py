@@ -149,6 +149,9 @@ class Job(models.Model):
     lines_sent = models.BigIntegerField(default=0)
     lines_acked = models.BigIntegerField(default=0)
     bytes_acked = models.BigIntegerField(default=0)
+    #: When the worker saved lines_acked and bytes_acked (about once a second while
+    #: printing): the estimate is made for that moment, then brought to now.
+    progress_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     started_at = models.DateTimeField(null=True, blank=True)
     finished_at = models.DateTimeField(null=True, blank=True)
@@ -229,16 +232,31 @@ class Job(models.Model):
         end = self.finished_at or timezone.now()
         return max(0.0, (end - self.started_at).total_seconds())
 
+    def progress_age(self) -> float:
+        """Seconds since the worker saved the progress this row holds, while the job
+        prints (0 when paused, finished or never saved): the machine has moved on
+        by that much since its `lines_acked`."""
+        if self.state != self.State.PRINTING or self.progress_at is None:
+            return 0.0
+        return max(0.0, (timezone.now() - self.progress_at).total_seconds())
+
     def remaining_seconds(self) -> float | None:
         """A linear guess from elapsed time and progress, while the job runs."""
         elapsed, share = self.elapsed_seconds(), self.progress
         if elapsed is None or self.finished_at is not None or not 0 < share < 1:
             return None
-        return elapsed / share * (1 - share)
+        age = min(self.progress_age(), elapsed)
+        return max(0.0, (elapsed - age) / share * (1 - share) - age)
 
     def timing(self) -> dict[str, Any]:
         """Remaining time, end time, layer and filament so far, by the file's analysis
-        (`jobs.eta`) while the job runs; the linear guess when there is none."""
+        (`jobs.eta`) while the job runs; the linear guess when there is none.
+
+        The estimate is made for the moment the progress was saved (its line with
+        the time elapsed then), and the time since is taken off: pairing a line up
+        to a second old with the time elapsed now would make the print look slower
+        than it runs and the remaining time a second long.
+        """
         elapsed, linear = self.elapsed_seconds(), self.remaining_seconds()
         out: dict[str, Any] = {
             "eta": None if linear is None else round(linear, 1),
@@ -258,9 +276,10 @@ class Job(models.Model):
         if analysed is not None:
             from jobs.eta import estimate
 
-            found = estimate(analysed, line=self.lines_acked, elapsed=elapsed)
+            age = min(self.progress_age(), elapsed)
+            found = estimate(analysed, line=self.lines_acked, elapsed=elapsed - age)
             out.update(
-                eta=found.remaining,
+                eta=round(max(0.0, found.remaining - age), 1),
                 eta_origin=found.origin,
                 time_progress=found.progress,
                 layer=found.layer,

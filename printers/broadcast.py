@@ -136,7 +136,7 @@ class LivePublisher:
             self._send(printer_id, event)
 
     def job(
-        self, job_id: int | None, *, progress: dict[str, int] | None = None
+        self, job_id: int | None, *, progress: dict[str, object] | None = None
     ) -> None:
         """A job's row was saved: publish it as stored. *progress*: only these
         counters changed (the worker's progress save), so a row read within

@@ -105,7 +105,10 @@ def claim_next(printer_id: int) -> Job | None:
         if not _file_here(job):
             return None
         won = Job.objects.filter(pk=job.pk, state=Job.State.QUEUED).update(
-            state=Job.State.PRINTING, started_at=timezone.now(), message=""
+            state=Job.State.PRINTING,
+            started_at=timezone.now(),
+            progress_at=None,
+            message="",
         )
         if won == 1:
             job.refresh_from_db()
@@ -221,6 +224,7 @@ def save_progress(stream: Stream, *, state: str | None = None) -> None:
         "lines_sent": stream.reached,
         "lines_acked": stream.done,
         "bytes_acked": stream.bytes_acked,
+        "progress_at": timezone.now(),
     }
     if state:
         fields["state"] = state

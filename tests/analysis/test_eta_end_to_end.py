@@ -10,10 +10,11 @@ its own. runhost's Celery worker analyses the file first. The remaining time the
 job reports (`/printer/job?a=list`) at 25, 50 and 75 % of its time progress is
 held against the time the print then really took.
 
-The print is as short as the check allows: the remaining time the job reports is
-about a second high whatever the print's length (the progress is saved once a
-second, and the analysis does not time the start's homing), so 5 % at 75 % needs
-half a minute left there.
+The print is as short as the check allows: 5 % at 75 % leaves a second and a half
+of the half minute left there. The job's progress is saved about once a second;
+the remaining time is reckoned for the moment of that save and brought to now
+(`Job.progress_at`), so the save's age is not an error. The analysis does not time
+the start's homing, which is.
 
 (`make bench`'s ETA section prints the quarter-hour slice the same way in real time:
 bench/eta.py.)

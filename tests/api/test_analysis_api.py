@@ -114,6 +114,48 @@ def test_a_running_job_reports_its_eta_by_the_analysis(keys, analysed: Job) -> N
     assert job["eta"] == pytest.approx(said.remaining, abs=2)
 
 
+def test_the_eta_is_reckoned_when_the_progress_was_saved_and_brought_to_now(
+    keys, analysed: Job
+) -> None:
+    now = timezone.now()
+    line = analysed.line_count // 2
+    Job.objects.filter(pk=analysed.pk).update(
+        state=Job.State.PRINTING, started_at=now - timedelta(seconds=400),
+        lines_acked=line, bytes_acked=analysed.size_bytes // 2,
+        progress_at=now - timedelta(seconds=20),
+    )  # fmt: skip
+    _, body = call("get", "/printer/state/mk3", keys("viewer"))
+    # The line was acknowledged 380 s in; 20 s of the rest have run since.
+    said = estimate(analysing.analysis_of(analysed), line=line, elapsed=380)
+    assert body["data"]["job"]["eta"] == pytest.approx(said.remaining - 20, abs=2)
+
+
+def test_a_paused_job_keeps_its_eta_while_it_waits(keys, analysed: Job) -> None:
+    now = timezone.now()
+    line = analysed.line_count // 2
+    Job.objects.filter(pk=analysed.pk).update(
+        state=Job.State.PAUSED, started_at=now - timedelta(seconds=400),
+        lines_acked=line, bytes_acked=analysed.size_bytes // 2,
+        progress_at=now - timedelta(seconds=60),
+    )  # fmt: skip
+    _, body = call("get", "/printer/state/mk3", keys("viewer"))
+    said = estimate(analysing.analysis_of(analysed), line=line, elapsed=400)
+    assert body["data"]["job"]["eta"] == pytest.approx(said.remaining, abs=2)
+
+
+def test_the_linear_guess_is_also_brought_to_now(keys, printer, make_job) -> None:
+    now = timezone.now()
+    job = make_job(printer, "G1 X1\n" * 100)
+    Job.objects.filter(pk=job.pk).update(
+        state=Job.State.PRINTING, started_at=now - timedelta(seconds=100),
+        bytes_acked=job.size_bytes // 4, progress_at=now - timedelta(seconds=20),
+    )  # fmt: skip
+    job.refresh_from_db()
+    # A quarter done 80 s in: 240 s left then, 220 s now (not 300 s).
+    assert job.timing()["eta"] == pytest.approx(220, abs=2)
+    assert job.timing()["eta_origin"] == "linear"
+
+
 def test_analyse_again_resets_a_failed_analysis(keys, analysed: Job) -> None:
     FileAnalysis.objects.filter(pk=analysed.analysis_id).update(
         state=FileAnalysis.State.FAILED, reason="disk error"

@@ -7,6 +7,7 @@ from functools import partial
 
 import pytest
 from django.db import OperationalError
+from django.utils import timezone
 
 from jobs.commands import request_action, send_command
 from jobs.models import Job
@@ -104,6 +105,16 @@ def test_abort_stops_the_job_and_says_who(marlin, make_job):
     job = Job.objects.get(pk=job.pk)
     assert job.message == "aborted by tester"
     assert job.lines_acked < 5003
+
+
+def test_the_saved_progress_carries_the_time_it_was_saved(marlin, make_job):
+    """The ETA is reckoned for the moment of the save (`Job.timing`)."""
+    sim, printer, worker = marlin
+    job = make_job(printer, segments(5000))
+    saved = lambda: Job.objects.get(pk=job.pk)
+    wait_for(lambda: saved().lines_acked > 0, 10, "a progress save", step=worker.tick)
+    row = saved()
+    assert row.started_at <= row.progress_at <= timezone.now()
 
 
 def test_a_request_the_last_worker_took_and_never_answered_fails_with_the_reason(
