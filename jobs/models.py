@@ -14,6 +14,12 @@ from jobs import hostcache
 from jobs.paths import inside
 from printers.models import Printer
 
+#: Seconds of a saved progress's age that `Job.timing` brings the estimate on by,
+#: at most. A save is due every second: a longer silence is a worker that cannot
+#: write (its database link away), and a worker host whose clock is off must not
+#: move the estimate by more than this.
+PROGRESS_AGE_LIMIT = 5.0
+
 if TYPE_CHECKING:
     from datetime import datetime
 
@@ -232,21 +238,26 @@ class Job(models.Model):
         end = self.finished_at or timezone.now()
         return max(0.0, (end - self.started_at).total_seconds())
 
-    def progress_age(self) -> float:
-        """Seconds since the worker saved the progress this row holds, while the job
-        prints (0 when paused, finished or never saved): the machine has moved on
-        by that much since its `lines_acked`."""
-        if self.state != self.State.PRINTING or self.progress_at is None:
-            return 0.0
-        return max(0.0, (timezone.now() - self.progress_at).total_seconds())
+    def saved_moment(self, elapsed: float) -> tuple[float, float]:
+        """When the progress this row holds was saved, while the job prints: the
+        seconds the job had run then (both times the worker's clock), and the
+        seconds since (PROGRESS_AGE_LIMIT at most), by which the machine has moved
+        on from its `lines_acked`. (*elapsed*, 0) when paused, finished or never
+        saved."""
+        saved, started = self.progress_at, self.started_at
+        if self.state != self.State.PRINTING or saved is None or started is None:
+            return elapsed, 0.0
+        since = (timezone.now() - saved).total_seconds()
+        then = max(0.0, (saved - started).total_seconds())
+        return then, min(max(0.0, since), PROGRESS_AGE_LIMIT)
 
     def remaining_seconds(self) -> float | None:
         """A linear guess from elapsed time and progress, while the job runs."""
         elapsed, share = self.elapsed_seconds(), self.progress
         if elapsed is None or self.finished_at is not None or not 0 < share < 1:
             return None
-        age = min(self.progress_age(), elapsed)
-        return max(0.0, (elapsed - age) / share * (1 - share) - age)
+        then, since = self.saved_moment(elapsed)
+        return max(0.0, then / share * (1 - share) - since)
 
     def timing(self) -> dict[str, Any]:
         """Remaining time, end time, layer and filament so far, by the file's analysis
@@ -276,10 +287,10 @@ class Job(models.Model):
         if analysed is not None:
             from jobs.eta import estimate
 
-            age = min(self.progress_age(), elapsed)
-            found = estimate(analysed, line=self.lines_acked, elapsed=elapsed - age)
+            then, since = self.saved_moment(elapsed)
+            found = estimate(analysed, line=self.lines_acked, elapsed=then)
             out.update(
-                eta=round(max(0.0, found.remaining - age), 1),
+                eta=round(max(0.0, found.remaining - since), 1),
                 eta_origin=found.origin,
                 time_progress=found.progress,
                 layer=found.layer,

@@ -13,7 +13,7 @@ from django.utils import timezone
 from jobs import analysing, analysis_task
 from jobs.analysis.thumbnails import png_encode
 from jobs.eta import estimate
-from jobs.models import FileAnalysis, Job
+from jobs.models import PROGRESS_AGE_LIMIT, FileAnalysis, Job
 from jobs.services import enqueue_job
 from printers.models import Printer
 from tests.api.printer_api_helpers import call
@@ -122,12 +122,12 @@ def test_the_eta_is_reckoned_when_the_progress_was_saved_and_brought_to_now(
     Job.objects.filter(pk=analysed.pk).update(
         state=Job.State.PRINTING, started_at=now - timedelta(seconds=400),
         lines_acked=line, bytes_acked=analysed.size_bytes // 2,
-        progress_at=now - timedelta(seconds=20),
+        progress_at=now - timedelta(seconds=4),
     )  # fmt: skip
     _, body = call("get", "/printer/state/mk3", keys("viewer"))
-    # The line was acknowledged 380 s in; 20 s of the rest have run since.
-    said = estimate(analysing.analysis_of(analysed), line=line, elapsed=380)
-    assert body["data"]["job"]["eta"] == pytest.approx(said.remaining - 20, abs=2)
+    # The line was acknowledged 396 s in; 4 s of the rest have run since.
+    said = estimate(analysing.analysis_of(analysed), line=line, elapsed=396)
+    assert body["data"]["job"]["eta"] == pytest.approx(said.remaining - 4, abs=1)
 
 
 def test_a_paused_job_keeps_its_eta_while_it_waits(keys, analysed: Job) -> None:
@@ -148,12 +148,29 @@ def test_the_linear_guess_is_also_brought_to_now(keys, printer, make_job) -> Non
     job = make_job(printer, "G1 X1\n" * 100)
     Job.objects.filter(pk=job.pk).update(
         state=Job.State.PRINTING, started_at=now - timedelta(seconds=100),
-        bytes_acked=job.size_bytes // 4, progress_at=now - timedelta(seconds=20),
+        bytes_acked=job.size_bytes // 4, progress_at=now - timedelta(seconds=4),
     )  # fmt: skip
     job.refresh_from_db()
-    # A quarter done 80 s in: 240 s left then, 220 s now (not 300 s).
-    assert job.timing()["eta"] == pytest.approx(220, abs=2)
+    # A quarter done 96 s in: 288 s left then, 284 s now (not 300 s).
+    assert job.timing()["eta"] == pytest.approx(284, abs=1)
     assert job.timing()["eta_origin"] == "linear"
+
+
+def test_a_progress_long_unsaved_moves_the_eta_on_by_the_limit_only(
+    keys, printer, make_job
+) -> None:
+    """A worker that cannot write for a minute, or a worker host whose clock is a
+    minute behind, moves the estimate by PROGRESS_AGE_LIMIT, not by the minute."""
+    now = timezone.now()
+    job = make_job(printer, "G1 X1\n" * 100)
+    saved = now - timedelta(seconds=60)
+    Job.objects.filter(pk=job.pk).update(
+        state=Job.State.PRINTING, started_at=saved - timedelta(seconds=100),
+        bytes_acked=job.size_bytes // 4, progress_at=saved,
+    )  # fmt: skip
+    job.refresh_from_db()
+    # A quarter done 100 s in: 300 s left then.
+    assert job.timing()["eta"] == pytest.approx(300 - PROGRESS_AGE_LIMIT, abs=1)
 
 
 def test_analyse_again_resets_a_failed_analysis(keys, analysed: Job) -> None:
