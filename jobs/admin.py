@@ -11,6 +11,7 @@ from jobs.commands import request_action
 from jobs.history import HistoryEntry
 from jobs.models import ACTIVE_STATES, FarmJob, FileAnalysis, Job
 from jobs.services import delete_job_file
+from printers.doorbell import ring_at_commit
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -84,8 +85,10 @@ class JobAdmin(admin.ModelAdmin):
         caller = admin_caller(request)
         gone = queryset.filter(file_removed_at__isnull=False).count()
         queryset = queryset.filter(file_removed_at__isnull=True)
+        printers = set()
         for job in queryset.exclude(state__in=ACTIVE_STATES):
             record(caller, "requeue", printer=job.printer, job=job)
+            printers.add(job.printer_id)
         if gone:
             messages.warning(
                 request,
@@ -108,6 +111,8 @@ class JobAdmin(admin.ModelAdmin):
             preamble="",
             start_objects={},
         )
+        for printer_id in printers:
+            ring_at_commit(printer_id)
         messages.info(request, f"{count} job(s) queued again")
 
     @admin.action(

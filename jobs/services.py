@@ -19,6 +19,7 @@ from jobs.analysing import request_analysis
 from jobs.gcode import BadGcode, FileFacts, inspect_file
 from jobs.models import Job
 from jobs.paths import inside
+from printers.doorbell import ring_at_commit
 from printers.driver import LinkConfig
 from printers.worker.spool import next_position
 
@@ -270,11 +271,12 @@ def _copy_job(job: Job, *, origin: str, user: AbstractBaseUser | None) -> Job:
 
 def queue_job(job: Job) -> bool:
     """Put a stored job at the end of its printer's queue; False if it was not stored."""
-    return bool(
-        Job.objects.filter(pk=job.pk, state=Job.State.STORED).update(
-            state=Job.State.QUEUED, position=next_position(job.printer_id)
-        )
+    queued = Job.objects.filter(pk=job.pk, state=Job.State.STORED).update(
+        state=Job.State.QUEUED, position=next_position(job.printer_id)
     )
+    if queued:
+        ring_at_commit(job.printer_id)
+    return bool(queued)
 
 
 def queue_stored_file(printer: Printer, stored_name: str, *, origin: str = "") -> Job:

@@ -163,7 +163,10 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
             self.crash(f"internal error in the worker: {error!r}")
             raise
         finally:
-            self.stop()
+            try:
+                self.stop()
+            finally:
+                self.wakeups.close()
 
     def stop(self) -> None:
         """Save everything, close the port, give the printer back.

@@ -7,8 +7,12 @@ serial port. It reads the database when told to, and otherwise only every
 `PRINTHOST_FALLBACK_POLL_SECONDS`, instead of ten times a second: most of what an
 idle farm spent, on the worker hosts and on PostgreSQL.
 
-Without PostgreSQL (SQLite) there are no notifications: `fileno()` is None and the
-worker polls every `PRINTHOST_POLL_SECONDS`. Before each poll's reads it asks
+SQLite has no notifications. A worker in a process of its own (*alone*) waits on
+its doorbell instead (printers/doorbell.py: a named pipe the writers of its
+requests and jobs ring at commit) and polls as rarely as when it LISTENs; a
+worker that shares its connection (tests drive one in their own thread, inside
+transactions that never commit) has no doorbell: `fileno()` is None and it polls
+every `PRINTHOST_POLL_SECONDS`. On SQLite, before each poll's reads it asks
 SQLite whether anyone else wrote since the last one (`quiet()`: `PRAGMA
 data_version` counts other connections' commits); when nobody did, the
 requests, the jobs and the lease are as they were, and the reads are skipped
@@ -26,6 +30,8 @@ import time
 from typing import Any
 
 from django.db import connections
+
+from printers.doorbell import Doorbell
 
 __all__ = ["SqliteWrites", "Wakeups", "channel_for"]
 
@@ -60,16 +66,25 @@ class Wakeups:
         self._notifying = vendor == "postgresql"
         #: SQLite: what was written since the poll last read (`quiet()`).
         self._writes = SqliteWrites(alone=alone) if vendor == "sqlite" else None
+        #: SQLite, a worker process of its own: the doorbell its writers ring.
+        self._bell = Doorbell(printer_id) if vendor == "sqlite" and alone else None
+        if self._bell is not None:
+            self._heard = True  # what was written before the pipe is read at once
 
     @property
     def listening(self) -> bool:
-        """A LISTEN is in place: the worker may poll rarely."""
+        """A LISTEN (or a doorbell) is in place: the worker may poll rarely."""
+        if self._bell is not None:
+            return self._bell.fileno() is not None
         raw = self._listening
         return raw is not None and not raw.closed
 
     def fileno(self) -> int | None:
-        """The socket to wait on, LISTENing on the current connection first; None
-        when there is nothing to wait on (not PostgreSQL, no connection yet)."""
+        """The socket (or pipe) to wait on, LISTENing on the current connection
+        first; None when there is nothing to wait on (no LISTEN or doorbell, no
+        connection yet)."""
+        if self._bell is not None:
+            return self._bell.fileno()
         if not self._notifying:
             return None
         wrapper = connections[self.alias]
@@ -110,6 +125,9 @@ class Wakeups:
     def take(self, *, readable: bool) -> bool:
         """Whether a notification came since the last call; *readable*: the socket
         was, so what it holds is read first (without waiting)."""
+        if self._bell is not None:
+            heard, self._heard = self._heard, False
+            return (readable and self._bell.drain()) or heard
         raw = self._listening
         if readable and raw is not None and not raw.closed:
             try:
@@ -123,6 +141,11 @@ class Wakeups:
                 self._heard = True
         heard, self._heard = self._heard, False
         return heard
+
+    def close(self) -> None:
+        """The worker stops: remove its doorbell (a LISTEN ends with its connection)."""
+        if self._bell is not None:
+            self._bell.close()
 
     def quiet(self, now: float) -> bool:
         """SQLite: nobody wrote since the poll last read (SqliteWrites), so it

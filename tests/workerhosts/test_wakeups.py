@@ -1,8 +1,9 @@
-"""On PostgreSQL a worker is woken by what is written for its printer
-(printers/worker/wakeup.py), so it reads the database rarely and still answers at once.
+"""A worker is woken by what is written for its printer (printers/worker/wakeup.py:
+PostgreSQL's NOTIFY, or on SQLite its doorbell, printers/doorbell.py), so it reads
+the database rarely and still answers at once.
 
-The worker's fallback poll is set to two minutes: only a notification can start
-the job or answer the request within the tests' bounds.
+The worker's fallback poll is set to two minutes: only a notification (or a ring)
+can start the job or answer the request within the tests' bounds.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from tests.hosts import Host, postgres_url
 pytestmark = [pytest.mark.slow, pytest.mark.services]
 
 
-@pytest.fixture
-def host(tmp_path: Path) -> Host:
-    host = Host(tmp_path, postgres_url())
+@pytest.fixture(params=["postgres", "sqlite"])
+def host(tmp_path: Path, request: pytest.FixtureRequest) -> Host:
+    host = Host(tmp_path, postgres_url() if request.param == "postgres" else "")
     host.migrate()
     host.env["PRINTHOST_FALLBACK_POLL_SECONDS"] = "120"
     host.add_simulated_printer("p1", sim_args="--time-scale 0")
@@ -38,8 +39,12 @@ def test_a_queued_job_and_a_command_wake_a_worker_that_polls_every_two_minutes(
 ):
     key = host.add_user("op", "operator")
     (tmp_path / "part.gcode").write_text(segments(50))
+    (printer_id,) = host.query("SELECT id FROM printers_printer")[0]
+    bell = tmp_path / "doorbells" / f"printer-{printer_id}"
     with host.running():
         wait_for(lambda: _state(host) == "idle", 60, "the printer to be idle")
+        # On SQLite the worker waits on its doorbell (PostgreSQL: its LISTEN).
+        assert bell.is_fifo() == (not host.database_url)
         host.manage("add_job", "p1", str(tmp_path / "part.gcode"))
         wait_for(
             lambda: host.query("SELECT state FROM jobs_job")[0][0] == "completed",
@@ -50,6 +55,7 @@ def test_a_queued_job_and_a_command_wake_a_worker_that_polls_every_two_minutes(
             response = client.post("/printer/bedclear/p1")
             assert response.status_code == 200, response.text
             wait_for(lambda: _state(host) == "idle", 15, "the bed clear to be taken")
+    assert not bell.exists(), "the stopped worker left its doorbell"
 
 
 def test_the_triggers_notify_only_the_printer_written_for(tmp_path: Path):
