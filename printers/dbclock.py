@@ -6,17 +6,48 @@ seconds off would see a lease run out that its holder still renews, or keep a
 dead host's printer looking alive; a small board without a battery-backed clock
 starts minutes off and is stepped by NTP later, mid-print. The database's clock
 is read where the lease's row is, in the same statement.
+
+What a worker stamps with a time of its own (a job's start, end and progress, the
+response log's lines, a request's answer, a temperature reading) is stamped by
+the shared clock as this computer reckons it (`shared_now`, `shared_time`): its
+own clock plus the offset it last measured against the database's
+(`learn_offset`, at a worker's start and every OFFSET_CHECK_SECONDS, and with
+each worker host's heartbeat, which shows it). A board an hour off after a power
+cut, before NTP steps it, then still shows its prints' elapsed times, history and
+log in the farm's time. An offset under OFFSET_NEGLIGIBLE is taken as none: a
+computer kept by NTP is closer than reading it can tell.
 """
 
 from __future__ import annotations
 
+import time
 from datetime import UTC, datetime, timedelta
 
 from django.db import DEFAULT_DB_ALIAS, connections
 from django.db.models import DateTimeField, ExpressionWrapper
 from django.db.models.functions import Now
+from django.utils import timezone
 
-__all__ = ["database_now", "now_plus", "now_sql"]
+__all__ = [
+    "clock_offset",
+    "database_now",
+    "learn_offset",
+    "now_plus",
+    "now_sql",
+    "shared_now",
+    "shared_time",
+]
+
+#: Seconds between a worker's readings of the database's clock.
+OFFSET_CHECK_SECONDS = 60.0
+#: A reading whose round trip took longer than this (s) is not trusted: the
+#: database's time could be anywhere in it.
+OFFSET_TRUST_ROUND_TRIP = 0.25
+#: An offset smaller than this (s) is taken as none.
+OFFSET_NEGLIGIBLE = 0.5
+
+#: The database's clock minus this computer's (s), as last measured.
+_offset = 0.0
 
 
 def now_sql(vendor: str, *, with_params: bool = True) -> str:
@@ -50,3 +81,35 @@ def database_now(alias: str = DEFAULT_DB_ALIAS) -> datetime:
     if value.tzinfo is None:
         value = value.replace(tzinfo=UTC)
     return value
+
+
+def learn_offset(alias: str = DEFAULT_DB_ALIAS) -> float | None:
+    """Read the database's clock and keep how far this computer's is from it (for
+    `shared_now`); returns the offset measured (s), or None when the round trip
+    was too slow to tell. Raises what the query raises (the database away)."""
+    global _offset  # one clock per process
+    before = time.time()
+    shared = database_now(alias).timestamp()
+    after = time.time()
+    if after - before > OFFSET_TRUST_ROUND_TRIP:
+        return None
+    measured = shared - (before + after) / 2
+    _offset = measured if abs(measured) >= OFFSET_NEGLIGIBLE else 0.0
+    return measured
+
+
+def clock_offset() -> float:
+    """The database's clock minus this computer's (s), as last learned (0 when
+    negligible or never measured)."""
+    return _offset
+
+
+def shared_time() -> float:
+    """Seconds since the epoch by the shared clock, as this computer reckons it."""
+    return time.time() + _offset
+
+
+def shared_now() -> datetime:
+    """The time now by the shared clock, as this computer reckons it (aware)."""
+    now = timezone.now()
+    return now + timedelta(seconds=_offset) if _offset else now

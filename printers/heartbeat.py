@@ -38,7 +38,7 @@ from typing import Any
 from django.conf import settings
 from django.db.models.functions import Now
 
-from printers.dbclock import database_now, now_plus
+from printers.dbclock import database_now, learn_offset, now_plus
 from printers.hosts import HEARTBEAT_STALE_SECONDS, WorkerHost
 from printhost import __version__
 
@@ -72,6 +72,17 @@ def host_load() -> dict[str, Any]:
         pass
     with contextlib.suppress(OSError):
         load["disk_free_mb"] = shutil.disk_usage(settings.DATA_DIR).free // 1024**2
+    return load
+
+
+def heartbeat_load() -> dict[str, Any]:
+    """`host_load()` and how far this computer's clock is from the database's
+    (`clock_offset_s`, measured now; it also sets the offset this process's
+    stamps use, printers/dbclock.py)."""
+    load = host_load()
+    offset = learn_offset()
+    if offset is not None:
+        load["clock_offset_s"] = round(offset, 2)
     return load
 
 
@@ -147,7 +158,7 @@ class HostRegistration:
             version=__version__,
             started_at=Now(),
             seen_at=Now(),
-            load=host_load(),
+            load=heartbeat_load(),
             printers={},
         )
         if won != 1:
@@ -161,7 +172,7 @@ class HostRegistration:
         """Write the heartbeat; False if another runhost holds the name now."""
         return (
             WorkerHost.objects.filter(name=self.name, instance=self.instance).update(
-                seen_at=Now(), load=host_load(), printers=printers
+                seen_at=Now(), load=heartbeat_load(), printers=printers
             )
             == 1
         )

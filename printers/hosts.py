@@ -22,6 +22,8 @@ _NAME = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - a
 
 #: A host whose heartbeat is older than this is shown offline.
 HEARTBEAT_STALE_SECONDS = 30.0
+#: A host whose clock is this far (s) from the database's is warned about.
+CLOCK_WARN_SECONDS = 2.0
 #: Characters of the key kept in clear to find its row (safe to show).
 KEY_PREFIX_CHARS = 10
 
@@ -49,7 +51,8 @@ class WorkerHost(models.Model):
     version = models.CharField(max_length=50, blank=True)
     started_at = models.DateTimeField(null=True, blank=True)
     seen_at = models.DateTimeField(null=True, blank=True)
-    #: {"loadavg": [1, 5, 15], "cpus": n, "memory_mb": n, "disk_free_mb": n}
+    #: {"loadavg": [1, 5, 15], "cpus": n, "memory_mb": n, "disk_free_mb": n,
+    #: "clock_offset_s": the database's clock minus the host's}
     load = models.JSONField(default=dict, blank=True)
     #: {slug: {"pid": n, "running": bool, "restarts": n}} as the host runs them.
     printers = models.JSONField(default=dict, blank=True)
@@ -92,6 +95,17 @@ class WorkerHost(models.Model):
             return None
         return max(0.0, ((now or timezone.now()) - self.seen_at).total_seconds())
 
+    def clock_warning(self) -> str:
+        """What the dashboard says of the host's clock when it is CLOCK_WARN_SECONDS
+        or more from the database's ("" otherwise). The host stamps its prints and
+        log by the database's clock all the same (printers/dbclock.py)."""
+        load = self.load if isinstance(self.load, dict) else {}
+        offset = load.get("clock_offset_s")
+        if not isinstance(offset, int | float) or abs(offset) < CLOCK_WARN_SECONDS:
+            return ""
+        side = "behind" if offset > 0 else "ahead of"
+        return f"its clock is {abs(offset):.0f} s {side} the database's: set up NTP"
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
@@ -104,5 +118,6 @@ class WorkerHost(models.Model):
             "seen_at": self.seen_at.isoformat() if self.seen_at else None,
             "heartbeat_age": self.heartbeat_age(),
             "load": self.load,
+            "clock_warning": self.clock_warning(),
             "printers": self.printers,
         }

@@ -73,6 +73,7 @@ def host_groups(
                 "version": host["version"],
                 "load": "" if average is None else f"{average:.2f}",
                 "cpus": load.get("cpus"),
+                "clock_warning": host.get("clock_warning", ""),
                 "printers": by_host.get(host["name"], []),
             }
         )

@@ -334,6 +334,7 @@ class HostFamilies:
         cpus = gauge("cpus", "CPUs of the host")
         memory = gauge("memory_free_bytes", "Memory available on the host")
         disk = gauge("disk_free_bytes", "Free space in the host's data directory")
+        clock = gauge("clock_offset_seconds", "The database's clock minus the host's")
         count = gauge("printers", "Printers the host runs workers for")
         running = gauge("printers_running", "Workers of the host that are running")
         restarts = gauge("worker_restarts", "Worker restarts since the host started")
@@ -347,14 +348,26 @@ class HostFamilies:
             heard = host.heartbeat_age()
             if heard is not None:
                 age.add_metric(name, heard)
-            self._load(host, load, cpus, memory, disk)
+            self._load(host, load, cpus, memory, disk, clock)
             workers = host.printers if isinstance(host.printers, dict) else {}
             states = [w for w in workers.values() if isinstance(w, dict)]
             count.add_metric(name, float(len(workers)))
             running.add_metric(name, float(sum(bool(w.get("running")) for w in states)))
             total = sum(number(w.get("restarts")) or 0.0 for w in states)
             restarts.add_metric(name, total)
-        yield from (up, age, load, cpus, memory, disk, count, running, restarts, info)
+        yield from (
+            up,
+            age,
+            load,
+            cpus,
+            memory,
+            disk,
+            clock,
+            count,
+            running,
+            restarts,
+            info,
+        )
 
     @staticmethod
     def _gauge(
@@ -366,7 +379,7 @@ class HostFamilies:
 
     @staticmethod
     def _load(host: WorkerHost, *families: GaugeMetricFamily) -> None:
-        load_family, cpus, memory, disk = families
+        load_family, cpus, memory, disk, clock = families
         load: dict[str, Any] = host.load if isinstance(host.load, dict) else {}
         averages = load.get("loadavg")
         if isinstance(averages, list) and len(averages) == 3:
@@ -375,7 +388,7 @@ class HostFamilies:
                     load_family.add_metric([host.name, minutes], figure)
         for family, key, scale in (
             (cpus, "cpus", 1), (memory, "memory_free_mb", 1024**2),
-            (disk, "disk_free_mb", 1024**2),
+            (disk, "disk_free_mb", 1024**2), (clock, "clock_offset_s", 1),
         ):  # fmt: skip
             if (figure := number(load.get(key))) is not None:
                 family.add_metric([host.name], figure * scale)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from django.conf import settings
 
+from printers.dbclock import OFFSET_CHECK_SECONDS, learn_offset
 from printers.driver import LinkConfig, protocol_for
 from printers.models import Printer
 from printers.protocol.events import LineKind
@@ -124,6 +125,7 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
         self.next_progress = 0.0
         self.next_temperature = 0.0
         self.next_connect = 0.0
+        self.next_clock_check = 0.0
         self.backoff = BACKOFF_FIRST
 
     # -- lifecycle ---------------------------------------------------------------
@@ -131,6 +133,9 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
     def start(self) -> None:
         """Claim the printer and settle what a previous worker left behind."""
         self.lease.take(self.clock())
+        # What this worker stamps is stamped by the database's clock (dbclock.py).
+        learn_offset()
+        self.next_clock_check = self.clock() + OFFSET_CHECK_SECONDS
         with self.lease.held():
             recovered = spool.recover_interrupted(self.printer.pk, self.journal.last())
         for job in recovered:

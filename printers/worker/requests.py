@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING
 
 from django.db import connections
 from django.db.models import Case, When
-from django.utils import timezone
 
 from jobs.commands import EMERGENCY_COMMANDS
 from jobs.models import Job
+from printers.dbclock import shared_now
 from printers.models import QueuedCommand
 from printers.protocol.errors import CommandRejected
 from printers.streaming import Stream, StreamType, lines_from_text
@@ -122,7 +122,7 @@ class RequestPoller(EspCommands):
             return orphans.update(
                 state=RowState.FAILED,
                 reply=f"error: {why}; ask again",
-                done_at=timezone.now(),
+                done_at=shared_now(),
             )
 
     def _any_pending(self) -> bool:
@@ -323,7 +323,7 @@ class RequestPoller(EspCommands):
         QueuedCommand.objects.filter(pk=row_id, state=RowState.SENT).update(
             state=RowState.DONE if reply == "ok" else RowState.FAILED,
             reply=reply,
-            done_at=timezone.now(),
+            done_at=shared_now(),
         )
 
     def answer_esp(self, stream: Stream, text: str) -> None:
@@ -342,7 +342,7 @@ class RequestPoller(EspCommands):
         QueuedCommand.objects.filter(pk=row_id).update(
             state=RowState.FAILED if failed else RowState.DONE,
             reply=reply,
-            done_at=timezone.now(),
+            done_at=shared_now(),
         )
 
 

@@ -7,15 +7,14 @@ by the upkeep (`printers/upkeep.py`, from Celery beat), never in the worker's lo
 from __future__ import annotations
 
 import logging
-import time
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 from django.db import connections, transaction
 from django.db.models import Max
-from django.utils import timezone
 
 from printers import broadcast
+from printers.dbclock import shared_now, shared_time
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
@@ -59,7 +58,7 @@ class ResponseLog:
         self._buffer: list[tuple[int, datetime, str, int]] = []
         self._flush_at = 0.0
         self._stamp_wall = 0.0
-        self._stamp_at = timezone.now()
+        self._stamp_at = shared_now()
         #: The loop's time of the last batch stored by flush_if_due: its transaction
         #: checked the lease (the loop skips its own check right after one).
         self.stored_at = float("-inf")
@@ -81,8 +80,9 @@ class ResponseLog:
         """
         self.last_id += 1
         # The line's time: one datetime for lines within STAMP_SECONDS (aware
-        # UTC, as timezone.now() is with USE_TZ, always on, from one reading).
-        wall = time.time()
+        # UTC, as timezone.now() is with USE_TZ, always on, from one reading; by
+        # the shared clock, printers/dbclock.py).
+        wall = shared_time()
         if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
             self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
         self._buffer.append((self.last_id, self._stamp_at, text, int(kind)))

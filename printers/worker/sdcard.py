@@ -27,10 +27,10 @@ import re
 from typing import TYPE_CHECKING, Any
 
 from django.db.models import Min
-from django.utils import timezone
 
 from jobs.gcode import iter_commands
 from jobs.models import Job
+from printers.dbclock import shared_now
 from printers.protocol.marlin_sd import (
     SdCardState,
     SdDeleted,
@@ -340,7 +340,7 @@ class SdCardWatch:
 
     def _save_card(self, **values: Any) -> None:
         card = dict(self.worker.status.fields.get("sd_card") or {})
-        card.update(values, listed=timezone.now().isoformat())
+        card.update(values, listed=shared_now().isoformat())
         if not card.get("present"):
             card["files"] = []
         self.worker.status.update(sd_card=card)

@@ -6,12 +6,12 @@ import itertools
 from typing import TYPE_CHECKING, TypeVar
 
 from django.db.models import F
-from django.utils import timezone
 
 from jobs import history, hostcache
 from jobs.gcode import command_of, read_entries
 from jobs.models import ACTIVE_STATES, Job
 from printers import broadcast
+from printers.dbclock import shared_now
 from printers.reaper import LAST_SAVED
 from printers.streaming import Line, Stream, StreamType
 from printers.streaming.objects import ObjectFilter, ObjectMark, object_mark
@@ -55,7 +55,7 @@ def recover_interrupted(printer_id: int, journaled: Entry | None = None) -> list
         Job.objects.filter(pk=job.pk, state__in=[*ACTIVE_STATES, job.state]).update(
             state=Job.State.INTERRUPTED,
             message=job.message,
-            finished_at=job.finished_at or timezone.now(),
+            finished_at=job.finished_at or shared_now(),
             **progress,
         )
         history.record_run(job.pk)
@@ -106,7 +106,7 @@ def claim_next(printer_id: int) -> Job | None:
             return None
         won = Job.objects.filter(pk=job.pk, state=Job.State.QUEUED).update(
             state=Job.State.PRINTING,
-            started_at=timezone.now(),
+            started_at=shared_now(),
             progress_at=None,
             message="",
         )
@@ -224,7 +224,7 @@ def save_progress(stream: Stream, *, state: str | None = None) -> None:
         "lines_sent": stream.reached,
         "lines_acked": stream.done,
         "bytes_acked": stream.bytes_acked,
-        "progress_at": timezone.now(),
+        "progress_at": shared_now(),
     }
     if state:
         fields["state"] = state
@@ -262,7 +262,7 @@ def finish(stream: Stream) -> Job.State:
         lines_sent=stream.reached,
         lines_acked=stream.done,
         bytes_acked=stream.bytes_acked,
-        finished_at=timezone.now(),
+        finished_at=shared_now(),
     )
     history.record_run(stream.ref)
     broadcast.publisher().job(stream.ref)
@@ -272,7 +272,7 @@ def finish(stream: Stream) -> Job.State:
 def fail_job(job: Job, message: str) -> None:
     """A claimed job that cannot even start (file gone): mark it failed."""
     Job.objects.filter(pk=job.pk).update(
-        state=Job.State.FAILED, message=message, finished_at=timezone.now()
+        state=Job.State.FAILED, message=message, finished_at=shared_now()
     )
     history.record_run(job.pk)
     broadcast.publisher().job(job.pk)

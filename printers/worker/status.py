@@ -8,9 +8,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from django.utils import timezone
-
 from printers import broadcast
+from printers.dbclock import shared_now
 from printers.models import Printer, TemperatureSample
 
 if TYPE_CHECKING:
@@ -64,10 +63,10 @@ class PrinterStatus:
             with self.lease.held(**values):
                 self._sample_if_read(now, values)
         else:
-            values["worker_seen_at"] = timezone.now()
+            values["worker_seen_at"] = shared_now()
             Printer.objects.filter(pk=self.printer_id).update(**values)
             self._sample_if_read(now, values)
-        values.setdefault("worker_seen_at", timezone.now())
+        values.setdefault("worker_seen_at", shared_now())
         broadcast.publisher().status(self.printer_id, values)
         self._dirty.clear()
         self._saved_state = (self.state, self.message)
@@ -82,7 +81,7 @@ class PrinterStatus:
         if not temperatures or (self._sample_at is not None and now < self._sample_at):
             return False
         TemperatureSample.objects.create(
-            printer_id=self.printer_id, time=timezone.now(), temperatures=temperatures
+            printer_id=self.printer_id, time=shared_now(), temperatures=temperatures
         )
         self._sample_at = now + SAMPLE_SECONDS
         return True

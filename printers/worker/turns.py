@@ -12,6 +12,7 @@ import select
 import time
 from typing import TYPE_CHECKING
 
+from printers.dbclock import OFFSET_CHECK_SECONDS, learn_offset
 from printers.worker import spool
 from printers.worker.emergency import reset_when_held
 from printers.worker.lease import UNREACHABLE, DatabaseAway
@@ -48,6 +49,9 @@ class DatabaseTurns:
             self.lease.renew_if_due(now)
             if self.lease.recovered:
                 self.write_held(now)
+            if now >= self.next_clock_check and not self.lease.away:
+                self.next_clock_check = now + OFFSET_CHECK_SECONDS
+                learn_offset()
             if read:
                 self._check_lease(now)
                 self.requests.poll(now)

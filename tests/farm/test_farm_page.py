@@ -37,7 +37,7 @@ def test_the_farm_page_shows_the_queue_and_printers_by_host_and_material(
 ) -> None:
     rack = WorkerHost.objects.create(
         name="rack-1", seen_at=timezone.now(), version="0.1.0",
-        load={"loadavg": [0.42, 0.3, 0.2], "cpus": 4},
+        load={"loadavg": [0.42, 0.3, 0.2], "cpus": 4, "clock_offset_s": 3600.2},
     )  # fmt: skip
     farm_printer("mk3-a", worker_host=rack, material="PLA", colour="black")
     farm_printer("mk3-b", worker_host=rack, material="PLA", colour="black")
@@ -57,6 +57,7 @@ def test_the_farm_page_shows_the_queue_and_printers_by_host_and_material(
     assert 'Went to <a href="/printers/mk3-a/">mk3-a</a> as <a href="/jobs/' in html
     assert 'data-host="rack-1"' in html and "online · " in html
     assert "printhost 0.1.0 · load 0.42 · 4 CPUs" in html
+    assert "its clock is 3600 s behind the database&#x27;s: set up NTP" in html
     assert 'data-host="this server"' in html
     assert 'data-material="black PLA"' in html and 'data-material="PETG"' in html
     assert "2 waiting · 2 of 3 farm printers free" in html

@@ -76,7 +76,7 @@ def farm(make_printer: Callable[..., Printer], make_job: Callable[..., Job]) -> 
         hostname="pi-rack1",
         seen_at=now - timedelta(seconds=4),
         load={"loadavg": [0.5, 0.25, 0.125], "cpus": 4, "memory_free_mb": 512,
-              "disk_free_mb": 2048},
+              "disk_free_mb": 2048, "clock_offset_s": -3.5},
         printers={"mk4": {"pid": 10, "running": True, "restarts": 2},
                   "voron": {"pid": 11, "running": False, "restarts": 1}},
     )  # fmt: skip

@@ -85,6 +85,7 @@ def test_worker_hosts_report_heartbeat_age_and_load(farm, scrape):
     )
     assert value(found, "printhost_host_cpus", host="rack1") == 4
     assert value(found, "printhost_host_memory_free_bytes", host="rack1") == 512 * 2**20
+    assert value(found, "printhost_host_clock_offset_seconds", host="rack1") == -3.5
     assert value(found, "printhost_host_printers", host="rack1") == 2
     assert value(found, "printhost_host_printers_running", host="rack1") == 1
     assert value(found, "printhost_host_worker_restarts", host="rack1") == 3

@@ -177,10 +177,12 @@ def test_dashboard_shows_the_heartbeat_of_the_hosts_its_printers_run_on(
 
     shelf = WorkerHost.objects.create(
         name="shelf-1", version="0.1.0", seen_at=timezone.now(),
-        load={"loadavg": [0.42, 0.3, 0.2], "cpus": 4},
+        load={"loadavg": [0.42, 0.3, 0.2], "cpus": 4, "clock_offset_s": 1.9},
     )  # fmt: skip
     WorkerHost.objects.create(
-        name="shelf-2", seen_at=timezone.now() - timedelta(minutes=2)
+        name="shelf-2",
+        seen_at=timezone.now() - timedelta(minutes=2),
+        load={"clock_offset_s": -75.4},
     )
     WorkerHost.objects.create(name="elsewhere", seen_at=timezone.now())
     shop["first"].worker_host = shelf
@@ -193,11 +195,13 @@ def test_dashboard_shows_the_heartbeat_of_the_hosts_its_printers_run_on(
     one = hosts.split('data-host="shelf-1"')[1].split("</li>")[0]
     assert ">online<" in one and "1 printer · printhost 0.1.0" in one
     assert "load 0.42 on 4 CPUs" in one
+    assert "its clock" not in one  # within CLOCK_WARN_SECONDS
     assert "shelf-2" not in hosts and "elsewhere" not in hosts  # not theirs to see
     client.force_login(user_with(Role.VIEWER, shop["second"], name="v2"))
     body = client.get("/").content.decode()
     two = body.split('data-host="shelf-2"')[1].split("</li>")[0]
     assert ">offline<" in two and "heartbeat 120 s ago" in two
+    assert "its clock is 75 s ahead of the database&#x27;s" in two
 
 
 def test_dashboard_without_worker_hosts_shows_no_host_panel(
