@@ -85,7 +85,7 @@ class JobAdmin(admin.ModelAdmin):
         caller = admin_caller(request)
         gone = queryset.filter(file_removed_at__isnull=False).count()
         queryset = queryset.filter(file_removed_at__isnull=True)
-        printers = set()
+        printers: set[int] = set()
         for job in queryset.exclude(state__in=ACTIVE_STATES):
             record(caller, "requeue", printer=job.printer, job=job)
             printers.add(job.printer_id)

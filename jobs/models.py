@@ -240,7 +240,7 @@ class Job(models.Model):
 
     def saved_moment(self, elapsed: float) -> tuple[float, float]:
         """When the progress this row holds was saved, while the job prints: the
-        seconds the job had run then (both times the worker's clock), and the
+        seconds the job had run then (both times stamped by the worker), and the
         seconds since (PROGRESS_AGE_LIMIT at most), by which the machine has moved
         on from its `lines_acked`. (*elapsed*, 0) when paused, finished or never
         saved."""

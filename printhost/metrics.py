@@ -355,19 +355,8 @@ class HostFamilies:
             running.add_metric(name, float(sum(bool(w.get("running")) for w in states)))
             total = sum(number(w.get("restarts")) or 0.0 for w in states)
             restarts.add_metric(name, total)
-        yield from (
-            up,
-            age,
-            load,
-            cpus,
-            memory,
-            disk,
-            clock,
-            count,
-            running,
-            restarts,
-            info,
-        )
+        yield from (up, age, load, cpus, memory, disk, clock)
+        yield from (count, running, restarts, info)
 
     @staticmethod
     def _gauge(
