@@ -14,10 +14,8 @@ from jobs import hostcache
 from jobs.paths import inside
 from printers.models import Printer
 
-#: Seconds of a saved progress's age that `Job.timing` brings the estimate on by,
-#: at most. A save is due every second: a longer silence is a worker that cannot
-#: write (its database link away), and a worker host whose clock is off must not
-#: move the estimate by more than this.
+#: At most this many seconds of a saved progress's age bring `Job.timing` on: a
+#: save is due every second, so a longer silence is a worker that cannot write.
 PROGRESS_AGE_LIMIT = 5.0
 
 if TYPE_CHECKING:
@@ -261,13 +259,9 @@ class Job(models.Model):
 
     def timing(self) -> dict[str, Any]:
         """Remaining time, end time, layer and filament so far, by the file's analysis
-        (`jobs.eta`) while the job runs; the linear guess when there is none.
-
-        The estimate is made for the moment the progress was saved (its line with
-        the time elapsed then), and the time since is taken off: pairing a line up
-        to a second old with the time elapsed now would make the print look slower
-        than it runs and the remaining time a second long.
-        """
+        (`jobs.eta`) while the job runs; the linear guess when there is none. Both
+        are made at the saved progress's moment and brought to now (`saved_moment`):
+        an old line with the time elapsed now would add up to a second."""
         elapsed, linear = self.elapsed_seconds(), self.remaining_seconds()
         out: dict[str, Any] = {
             "eta": None if linear is None else round(linear, 1),
