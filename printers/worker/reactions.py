@@ -339,8 +339,8 @@ class Reactions:
         self.note(f"{text}: {stream.message}" if stream.message else text)
         if state == Job.State.FAILED:
             self.last_stream_error = stream.message
-        if state in (Job.State.FAILED, Job.State.ABORTED) and not upload:
-            self.stop_motion_after_error()  # a copy to the card moved nothing
+        if state in (Job.State.FAILED, Job.State.ABORTED):
+            self.stop_motion_after_error()
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
         self.hold_or_run(partial(self._finish, stream, state))
