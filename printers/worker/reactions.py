@@ -238,17 +238,10 @@ class Reactions:
             self.host.run_held_scripts()  # GRBL's abort script, after its reset
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
-        """The machine runs the moves it buffered even after an error or an abort.
-        GRBL: hold the feed, then reset it once held (printers/worker/emergency.py).
-        Marlin: M410 (quickstop) ahead of everything queued, so the moves its
-        planner holds (up to 16, seconds of motion, a laser's beam among them) are
-        dropped where the head is; the few commands it received and has not
-        planned yet still run, then the abort script. Marlin keeps its position
-        from the steppers. RepRapFirmware and Repetier are left to their script."""
+        """GRBL executes what it buffered even after an error or an abort: hold the
+        feed, then reset it once held (printers/worker/emergency.py)."""
         if self.printer.is_grbl:
             hold_then_reset(self, self.clock())
-        elif self.printer.firmware == "marlin" and self.transport is not None:
-            self.protocol.send_emergency("M410", self.clock())
 
     # -- stream host events -----------------------------------------------------
 
