@@ -4,8 +4,8 @@
 A worker in a process of its own (`run_printer`, as `runhost` starts them) makes
 `<data dir>/doorbells/printer-<id>`, a FIFO of mode 0600 in a directory of mode
 0700, and waits on it beside its serial port. Whoever commits a request or a
-queued job for the printer writes one byte to it (`ring_at_commit`: the signals
-in printers/apps.py and jobs/apps.py, and the bulk updates that queue jobs), as
+queued job for the printer writes one byte to it (`ring_at_commit`: the signal
+in printers/apps.py, and the bulk updates that queue jobs), as
 the PostgreSQL triggers notify. The worker then reads its requests at once
 instead of at its next poll, and polls only every
 `PRINTHOST_FALLBACK_POLL_SECONDS`, as it does while it LISTENs.
@@ -26,11 +26,12 @@ import os
 import stat
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 from django.conf import settings
 from django.db import connections, transaction
 
-__all__ = ["Doorbell", "bell_path", "ring", "ring_at_commit"]
+__all__ = ["Doorbell", "bell_path", "ring", "ring_at_commit", "ring_for_saved"]
 
 logger = logging.getLogger("printhost.worker")
 
@@ -69,6 +70,17 @@ def ring_at_commit(printer_id: int | None, *, using: str = "default") -> None:
     if printer_id is None or connections[using].vendor != "sqlite":
         return
     transaction.on_commit(partial(ring, printer_id), using=using)
+
+
+def ring_for_saved(
+    sender: type, instance: Any, *, created: bool = False, **kwargs: Any
+) -> None:
+    """`post_save` of a request or a job (connected in printers/apps.py): a new
+    request, or a job saved queued, rings its printer at commit; as the
+    PostgreSQL triggers (jobs/migrations/0010) notify on insert and on queued."""
+    wakes = instance.state == "queued" if sender._meta.label == "jobs.Job" else created
+    if wakes:
+        ring_at_commit(instance.printer_id, using=kwargs.get("using") or "default")
 
 
 class Doorbell:

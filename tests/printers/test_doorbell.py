@@ -85,7 +85,7 @@ def test_a_new_worker_replaces_a_killed_ones_pipe_and_keeps_it(storage: Path) ->
 
 
 def test_a_worker_that_cannot_make_its_pipe_polls(storage: Path) -> None:
-    bell_path(4).parent.parent.joinpath("doorbells").write_text("not a folder")
+    bell_path(4).parent.write_text("not a folder")
     doorbell = Doorbell(4)
     assert doorbell.fileno() is None
     assert doorbell.drain() is False
