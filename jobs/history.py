@@ -30,7 +30,8 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 from django.conf import settings
 from django.db import models
-from django.utils import timezone
+
+from printers.dbclock import shared_now
 
 if TYPE_CHECKING:
     from datetime import datetime
@@ -300,7 +301,7 @@ def record_run(job_id: object) -> HistoryEntry | None:
         return None
     if job.kind == Job.Kind.SD_UPLOAD:
         return None
-    finished = job.finished_at or timezone.now()
+    finished = job.finished_at or shared_now()
     figures = figures_of(job)
     user = job.uploaded_by
     entry, _ = HistoryEntry.objects.update_or_create(
@@ -341,7 +342,7 @@ def _seconds(start: datetime, end: datetime) -> float:
 
 def running_dict(job: Job, *, existing: set[int] | frozenset[int]) -> RunDict:
     """A run still printing or paused (H5), from its Job row, figures so far."""
-    now = timezone.now()
+    now = shared_now()
     started = job.started_at or now
     figures = figures_of(job)
     user = job.uploaded_by

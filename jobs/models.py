@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.db import models
-from django.utils import timezone
 
 from jobs import hostcache
 from jobs.paths import inside
+from printers.dbclock import shared_now
 from printers.models import Printer
 
 #: At most this many seconds of a saved progress's age bring `Job.timing` on: a
@@ -233,7 +233,7 @@ class Job(models.Model):
         """Seconds since the job started (until it finished); None before it starts."""
         if self.started_at is None:
             return None
-        end = self.finished_at or timezone.now()
+        end = self.finished_at or shared_now()
         return max(0.0, (end - self.started_at).total_seconds())
 
     def saved_moment(self, elapsed: float) -> tuple[float, float]:
@@ -245,7 +245,7 @@ class Job(models.Model):
         saved, started = self.progress_at, self.started_at
         if self.state != self.State.PRINTING or saved is None or started is None:
             return elapsed, 0.0
-        since = (timezone.now() - saved).total_seconds()
+        since = (shared_now() - saved).total_seconds()
         then = max(0.0, (saved - started).total_seconds())
         return then, min(max(0.0, since), PROGRESS_AGE_LIMIT)
 
@@ -293,7 +293,7 @@ class Job(models.Model):
             )
         if running and out["eta"] is not None:
             out["ends_at"] = (
-                timezone.now() + timedelta(seconds=out["eta"])
+                shared_now() + timedelta(seconds=out["eta"])
             ).isoformat()
         return out
 

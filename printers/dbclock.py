@@ -16,14 +16,22 @@ each worker host's heartbeat, which shows it). A board an hour off after a power
 cut, before NTP steps it, then still shows its prints' elapsed times, history and
 log in the farm's time. An offset under OFFSET_NEGLIGIBLE is taken as none: a
 computer kept by NTP is closer than reading it can tell.
+
+What judges those stamps by the time now (a host's heartbeat age and whether it
+is online, a job's elapsed time and ETA, the metrics) reads `shared_now` too. A
+web server, which may run on another computer than the database, learns its
+offset as it goes (`learn_offset_if_due` before a request, at most every
+OFFSET_CHECK_SECONDS; printhost/shared_clock.py): one a minute off would
+otherwise show every worker host offline.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from datetime import UTC, datetime, timedelta
 
-from django.db import DEFAULT_DB_ALIAS, connections
+from django.db import DEFAULT_DB_ALIAS, DatabaseError, connections
 from django.db.models import DateTimeField, ExpressionWrapper
 from django.db.models.functions import Now
 from django.utils import timezone
@@ -32,8 +40,10 @@ __all__ = [
     "clock_offset",
     "database_now",
     "learn_offset",
+    "learn_offset_if_due",
     "now_plus",
     "now_sql",
+    "offset_due",
     "shared_now",
     "shared_time",
 ]
@@ -48,6 +58,8 @@ OFFSET_NEGLIGIBLE = 0.5
 
 #: The database's clock minus this computer's (s), as last measured.
 _offset = 0.0
+#: When this process last read the database's clock (monotonic; -inf: never).
+_learned_at = float("-inf")
 
 
 def now_sql(vendor: str, *, with_params: bool = True) -> str:
@@ -87,7 +99,8 @@ def learn_offset(alias: str = DEFAULT_DB_ALIAS) -> float | None:
     """Read the database's clock and keep how far this computer's is from it (for
     `shared_now`); returns the offset measured (s), or None when the round trip
     was too slow to tell. Raises what the query raises (the database away)."""
-    global _offset  # one clock per process
+    global _offset, _learned_at  # one clock per process
+    _learned_at = time.monotonic()
     before = time.time()
     shared = database_now(alias).timestamp()
     after = time.time()
@@ -113,3 +126,21 @@ def shared_now() -> datetime:
     """The time now by the shared clock, as this computer reckons it (aware)."""
     now = timezone.now()
     return now + timedelta(seconds=_offset) if _offset else now
+
+
+def offset_due() -> bool:
+    """This process has not read the database's clock for OFFSET_CHECK_SECONDS."""
+    return time.monotonic() - _learned_at >= OFFSET_CHECK_SECONDS
+
+
+def learn_offset_if_due() -> None:
+    """`learn_offset` when this process has not read the database's clock for
+    OFFSET_CHECK_SECONDS (one query a minute at most; not in an event loop).
+    While the database is away the offset last learned stands, and the next try
+    waits as long. Never in a worker's loop: a database that does not answer
+    would hold its stream up (the worker learns on its own turns)."""
+    if not offset_due():
+        return
+    # The database away: the request that follows meets it and says so.
+    with contextlib.suppress(DatabaseError):
+        learn_offset()

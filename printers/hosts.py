@@ -16,7 +16,8 @@ from typing import Any
 
 from django.core.validators import RegexValidator
 from django.db import models
-from django.utils import timezone
+
+from printers.dbclock import shared_now
 
 _NAME = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - and _")
 
@@ -80,7 +81,7 @@ class WorkerHost(models.Model):
 
     @property
     def online(self) -> bool:
-        return self.online_at(timezone.now())
+        return self.online_at(shared_now())
 
     def online_at(self, now: datetime) -> bool:
         """Heard within HEARTBEAT_STALE_SECONDS of *now* (the database's time, where
@@ -93,7 +94,7 @@ class WorkerHost(models.Model):
         """Seconds since the last heartbeat (None: never seen)."""
         if self.seen_at is None:
             return None
-        return max(0.0, ((now or timezone.now()) - self.seen_at).total_seconds())
+        return max(0.0, ((now or shared_now()) - self.seen_at).total_seconds())
 
     def clock_warning(self) -> str:
         """What the dashboard says of the host's clock when it is CLOCK_WARN_SECONDS

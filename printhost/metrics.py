@@ -48,6 +48,7 @@ from django.utils import timezone
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
 from jobs.models import Job
+from printers.dbclock import shared_time
 from printers.hosts import WorkerHost
 from printers.models import Printer
 
@@ -129,7 +130,7 @@ class FarmCollector:
             printers = printers.filter(worker_host__name=self.host)
             hosts = hosts.filter(name=self.host)
         printers = list(printers)
-        now = timezone.now().timestamp()
+        now = shared_time()
         yield from printer_families(printers, now)
         yield from job_families(printers, running_jobs(printers))
         if self.host is None:

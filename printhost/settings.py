@@ -75,6 +75,7 @@ MIDDLEWARE = [
     # First: it times everything below it (printhost/metrics_web.py).
     "printhost.metrics_web.request_latency",
     "printhost.slashes.collapse_slashes",
+    "printhost.shared_clock.learn_clock_offset",
     "django.middleware.security.SecurityMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",

@@ -144,6 +144,17 @@ def fast_password_hashing(settings: object) -> None:
     settings.PASSWORD_HASHERS = ["django.contrib.auth.hashers.MD5PasswordHasher"]  # type: ignore[attr-defined]
 
 
+@pytest.fixture(autouse=True)
+def database_clock_just_read(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A web request reads the database's clock when this process last did a
+    minute ago or more (printhost/shared_clock.py): taken here as just read, so
+    that the queries a test counts do not hang on when the last test ran. The
+    tests of that reading (tests/workerhosts/test_web_clock.py) set it back."""
+    from printers import dbclock
+
+    monkeypatch.setattr(dbclock, "_learned_at", float("inf"))
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the project to bytecode once, before any test starts a process.
 

@@ -8,6 +8,7 @@ from django.core.exceptions import ValidationError
 from django.core.management.base import BaseCommand, CommandError
 from django.db.models import ProtectedError
 
+from printers.dbclock import learn_offset
 from printers.heartbeat import HostRefused, release
 from printers.hosts import WorkerHost
 
@@ -89,6 +90,7 @@ class Command(BaseCommand):
         )
 
     def _list(self) -> None:
+        learn_offset()  # heartbeats are stamped by the database's clock
         for host in WorkerHost.objects.prefetch_related("printer_set"):
             age = host.heartbeat_age()
             seen = "never seen" if age is None else f"seen {age:.0f} s ago"
