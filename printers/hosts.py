@@ -10,6 +10,7 @@ once by `manage.py worker_host add NAME`).
 from __future__ import annotations
 
 import hashlib
+import math
 import secrets
 from datetime import datetime, timedelta
 from typing import Any
@@ -31,6 +32,21 @@ KEY_PREFIX_CHARS = 10
 
 def key_digest(key: str) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
+
+
+def load_figures(load: object) -> tuple[float | None, int | None]:
+    """The one-minute load average and the CPU count of a heartbeat's `load`,
+    each None unless it is a number (the host writes the row: a bad value must
+    not break the pages that show it)."""
+    load = load if isinstance(load, dict) else {}
+    averages, cpus = load.get("loadavg"), load.get("cpus")
+    first = averages[0] if isinstance(averages, list) and averages else None
+    number = isinstance(first, int | float) and not isinstance(first, bool)
+    counted = isinstance(cpus, int) and not isinstance(cpus, bool) and cpus > 0
+    return (
+        first if number and math.isfinite(first) else None,
+        cpus if counted else None,
+    )
 
 
 class WorkerHost(models.Model):

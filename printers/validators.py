@@ -5,6 +5,7 @@ Migrations name them as `printers.models.validate_*`, which models.py keeps.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from django.conf import settings
@@ -55,8 +56,14 @@ def validate_motion_profile(value: object) -> None:
         raise ValidationError(str(error), code="motion") from None
 
 
+#: The farthest a build volume's corner may lie from the origin (mm): 10 m.
+BUILD_VOLUME_REACH = 10_000
+
+
 def validate_build_volume(value: object) -> None:
-    """{} (unknown) or {"min": [x, y, z], "max": [x, y, z]} in mm, min below max."""
+    """{} (unknown) or {"min": [x, y, z], "max": [x, y, z]} in mm, min below max,
+    each within BUILD_VOLUME_REACH of the origin (JSON's Infinity would make
+    every part fit, and the farm's size order meaningless)."""
     if value in ({}, None):
         return
     if not isinstance(value, dict) or set(value) != {"min", "max"}:
@@ -73,6 +80,13 @@ def validate_build_volume(value: object) -> None:
     ):
         raise ValidationError(
             "min and max are three numbers each (x, y, z in mm)", code="build_volume"
+        )
+    if not all(
+        math.isfinite(v) and abs(v) <= BUILD_VOLUME_REACH for c in corners for v in c
+    ):
+        raise ValidationError(
+            f"each number is in mm, at most {BUILD_VOLUME_REACH} from 0",
+            code="build_volume",
         )
     if not all(lo < hi for lo, hi in zip(*corners, strict=True)):
         raise ValidationError(

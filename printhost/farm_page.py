@@ -13,6 +13,7 @@ from collections import defaultdict
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
+from printers.hosts import load_figures
 from printers.models import Printer
 from printhost.api.farm import overview
 from printhost.models import Role
@@ -62,8 +63,7 @@ def host_groups(
     if by_host.get(""):
         groups.append({"name": LOCAL_HOST, "local": True, "printers": by_host[""]})
     for host in hosts:
-        load = host.get("load") or {}
-        average = (load.get("loadavg") or [None])[0]
+        average, cpus = load_figures(host.get("load"))
         groups.append(
             {
                 "name": host["name"],
@@ -72,7 +72,7 @@ def host_groups(
                 "age": age_text(host["heartbeat_age"]),
                 "version": host["version"],
                 "load": "" if average is None else f"{average:.2f}",
-                "cpus": load.get("cpus"),
+                "cpus": cpus,
                 "clock_warning": host.get("clock_warning", ""),
                 "printers": by_host.get(host["name"], []),
             }

@@ -27,6 +27,8 @@ logger = logging.getLogger("printhost.hostfiles")
 
 _KEY_HEAD = "ph_host_"
 _RANGE = re.compile(r"bytes=(\d+)-$")
+#: A Range start of more digits is past any file (and int() of thousands raises).
+_MOST_DIGITS = 18
 
 
 def _refuse(status: int, error: str) -> JsonResponse:
@@ -100,4 +102,7 @@ def job_file(request: HttpRequest, job_id: int) -> HttpResponse:
 def _range_start(header: str) -> int | None:
     """The start of `bytes=N-` (the one range a resumed download asks for)."""
     match = _RANGE.match(header.strip())
-    return int(match.group(1)) if match else None
+    if match is None:
+        return None
+    digits = match.group(1)
+    return int(digits) if len(digits) <= _MOST_DIGITS else 10**_MOST_DIGITS

@@ -160,7 +160,7 @@ def dashboard(request: HttpRequest) -> HttpResponse:
 
 def hosts_of(printers: list[Printer]) -> list[dict[str, object]]:
     """The worker hosts that drive *printers*, with their last heartbeat."""
-    from printers.hosts import HEARTBEAT_STALE_SECONDS, WorkerHost
+    from printers.hosts import HEARTBEAT_STALE_SECONDS, WorkerHost, load_figures
 
     ids = {p.worker_host_id for p in printers if p.worker_host_id}
     hosts = WorkerHost.objects.filter(pk__in=ids).prefetch_related("printer_set")
@@ -169,8 +169,7 @@ def hosts_of(printers: list[Printer]) -> list[dict[str, object]]:
             **host.as_dict(),
             "stale_after": HEARTBEAT_STALE_SECONDS,
             "count": len(host.printer_set.all()),
-            "load1": (host.load.get("loadavg") or [None])[0],
-            "cpus": host.load.get("cpus"),
+            **dict(zip(("load1", "cpus"), load_figures(host.load), strict=True)),
         }
         for host in hosts
     ]

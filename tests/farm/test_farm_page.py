@@ -65,6 +65,30 @@ def test_the_farm_page_shows_the_queue_and_printers_by_host_and_material(
     assert 'data-test="loaded-form"' not in html
 
 
+@pytest.mark.parametrize(
+    "load",
+    [
+        {"loadavg": ["high"], "cpus": "four"},
+        {"loadavg": 0.5, "cpus": -1},
+        {"loadavg": [[1]], "cpus": True},
+        ["not", "a", "dict"],
+    ],
+)
+def test_a_heartbeat_with_junk_for_its_load_leaves_the_pages_up(
+    farm_printer: Callable[..., Printer], load: object
+) -> None:
+    """The worker host writes its row: a bad value shows no load, not a 500."""
+    rack = WorkerHost.objects.create(name="rack-1", seen_at=timezone.now(), load=load)
+    farm_printer("mk3-a", worker_host=rack)
+    client = browser("viewer")
+    for path in ("/farm/", "/"):
+        page = client.get(path)
+        assert page.status_code == 200, path
+        html = page.content.decode()
+        assert 'data-host="rack-1"' in html
+        assert "· load" not in html and "CPUs" not in html
+
+
 def test_operators_get_the_queues_buttons_and_the_loaded_forms_of_their_printers(
     farm_printer: Callable[..., Printer], to_farm: Callable[..., FarmJob]
 ) -> None:
