@@ -14,6 +14,7 @@ request's body is never read.
 from __future__ import annotations
 
 import hmac
+import ipaddress
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -101,3 +102,25 @@ def header_refusal(authorization: str, address: str = "") -> Refusal | None:
     if caller is None:
         return Refusal(401, "invalid or revoked API key")
     return caller_refusal(caller)
+
+
+def bind_refusal(bind: str) -> str:
+    """Why a worker host's metrics server may not listen on *bind* ("" if it may).
+
+    Beyond this computer only with PRINTHOST_METRICS_TOKEN: without it a scrape
+    needs an admin's API key, which Prometheus would send in clear (the server
+    speaks plain HTTP) to every worker host, and a key that runs the farm.
+    """
+    if settings.PRINTHOST_METRICS_TOKEN:
+        return ""
+    try:
+        local = ipaddress.ip_address(bind.strip("[]")).is_loopback
+    except ValueError:
+        local = bind == "localhost"
+    if local:
+        return ""
+    return (
+        f"metrics on {bind} would answer other computers: set "
+        "PRINTHOST_METRICS_TOKEN first (without it a scrape must send an admin's "
+        "API key, in clear), or bind to 127.0.0.1"
+    )

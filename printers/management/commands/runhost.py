@@ -16,6 +16,7 @@ from django.core.management.base import BaseCommand, CommandError
 
 from printers.heartbeat import HostRefused, HostRegistration
 from printers.supervisor import Supervisor
+from printhost.metrics_access import bind_refusal
 from printhost.startup import secret_key_refusal
 
 if TYPE_CHECKING:
@@ -61,6 +62,10 @@ class Command(BaseCommand):
     def handle(self, *args: Any, **options: Any) -> None:
         # Children (simulators: their --record check) see the same data directory.
         os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
+        if options["metrics_port"] and (
+            refusal := bind_refusal(options["metrics_bind"])
+        ):
+            raise CommandError(f"--metrics-bind: {refusal}")
         worker_host = self._worker_host(options)
         # Workers claim only printers of the host they run on (their lease says so).
         os.environ["PRINTHOST_WORKER_HOST"] = worker_host.name if worker_host else ""

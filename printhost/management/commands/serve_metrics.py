@@ -11,10 +11,12 @@ when no token is set: there are no sessions here), and never reads a body.
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import signal
 import socket
+import time
 from typing import TYPE_CHECKING, Any
 from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
@@ -23,7 +25,7 @@ from django.db import DatabaseError
 
 from printers.hosts import WorkerHost
 from printhost.longrunning import close_failed_connections
-from printhost.metrics_access import header_refusal
+from printhost.metrics_access import bind_refusal, header_refusal
 from printhost.metrics_view import scrape
 
 if TYPE_CHECKING:
@@ -85,12 +87,50 @@ def application_for(host: str) -> Callable[..., Iterable[bytes]]:
     return application
 
 
+#: A request's line and headers must be in within this many seconds, however
+#: slowly they come: the server answers one connection at a time.
+REQUEST_SECONDS = 5.0
+
+
+class _Deadline(io.RawIOBase):
+    """A connection's bytes, read until a deadline: each read waits at most what
+    is left of it (and at most *step*), so a byte every second cannot hold the
+    connection open for ever."""
+
+    def __init__(self, connection: socket.socket, seconds: float, step: float) -> None:
+        self._connection, self._step = connection, step
+        self._deadline = time.monotonic() + seconds
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        left = self._deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError(f"the request took over {REQUEST_SECONDS:.0f} s")
+        self._connection.settimeout(min(left, self._step))
+        return self._connection.recv_into(buffer)
+
+
 class _QuietHandler(WSGIRequestHandler):
     """Requests go to the debug log, not to stderr line by line. A connection that
-    sends nothing is dropped after `timeout` seconds: the server answers one at a
-    time, and an idle one would hold off every scrape (and SIGTERM)."""
+    sends nothing for `timeout` seconds, or not its whole request within
+    REQUEST_SECONDS, is dropped: the server answers one at a time, and a slow one
+    would hold off every scrape (and SIGTERM)."""
 
     timeout = 2.0
+
+    def setup(self) -> None:
+        super().setup()
+        self.rfile = io.BufferedReader(
+            _Deadline(self.connection, REQUEST_SECONDS, self.timeout)
+        )
+
+    def handle(self) -> None:
+        try:
+            super().handle()
+        except TimeoutError as error:
+            logger.debug("metrics: dropped %s: %s", self.client_address[0], error)
 
     def log_message(self, format: str, *args: Any) -> None:
         logger.debug("metrics scrape from %s: " + format, self.client_address[0], *args)
@@ -110,6 +150,8 @@ class Command(BaseCommand):
 
     def handle(self, *args: Any, **options: Any) -> None:
         name, bind, port = options["worker_host"], options["bind"], options["port"]
+        if refusal := bind_refusal(bind):
+            raise CommandError(refusal)
         if not WorkerHost.objects.filter(name=name).exists():
             known = ", ".join(WorkerHost.objects.values_list("name", flat=True))
             raise CommandError(
