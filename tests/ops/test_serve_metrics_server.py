@@ -5,6 +5,7 @@ of the database, and it answers other computers only with the scrape token
 
 from __future__ import annotations
 
+import os
 import socket
 import threading
 from unittest import mock
@@ -95,7 +96,12 @@ def test_a_request_dripped_a_byte_a_second_is_dropped_and_the_scrape_answered(
 
 
 @pytest.mark.parametrize("bind", ["0.0.0.0", "::", "192.168.1.20", "rack1.lan"])
-def test_metrics_for_other_computers_need_the_scrape_token(bind: str, settings) -> None:
+def test_metrics_for_other_computers_need_the_scrape_token(
+    bind: str, settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # runhost in this process: whatever of the environment it sets is put back.
+    for name in ("PRINTHOST_DATA_DIR", "PRINTHOST_WORKER_HOST"):
+        monkeypatch.setenv(name, os.environ.get(name, ""))
     settings.PRINTHOST_METRICS_TOKEN = ""
     assert "PRINTHOST_METRICS_TOKEN" in bind_refusal(bind)
     with pytest.raises(CommandError, match="PRINTHOST_METRICS_TOKEN"):

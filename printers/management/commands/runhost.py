@@ -60,12 +60,12 @@ class Command(BaseCommand):
         parser.add_argument("--metrics-bind", default="127.0.0.1")
 
     def handle(self, *args: Any, **options: Any) -> None:
-        # Children (simulators: their --record check) see the same data directory.
-        os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
         if options["metrics_port"] and (
             refusal := bind_refusal(options["metrics_bind"])
         ):
             raise CommandError(f"--metrics-bind: {refusal}")
+        # Children (simulators: their --record check) see the same data directory.
+        os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
         worker_host = self._worker_host(options)
         # Workers claim only printers of the host they run on (their lease says so).
         os.environ["PRINTHOST_WORKER_HOST"] = worker_host.name if worker_host else ""
