@@ -49,6 +49,9 @@ class Gate:
     refused: bool = False
     #: Who holds one of `bodylimits.SLOTS` for this upload ("" once given back).
     uploader: str = ""
+    #: Why a body over the small cap is refused (403): its sender may upload
+    #: nowhere, so the route's other calls (a POSTed `a=list`) are all it may send.
+    small_only: str = ""
 
     def give_back(self) -> None:
         if self.uploader:
@@ -80,7 +83,10 @@ class RawBodyRequest(WebRequest):
             else gate.cap
         )
         if gate.received > cap:
-            self.channel.refuse(self, 413, bodylimits.too_large(upload=gate.upload))
+            if gate.small_only:
+                self.channel.refuse(self, 403, gate.small_only)
+            else:
+                self.channel.refuse(self, 413, bodylimits.too_large(upload=gate.upload))
             return
         if gate.upload and gate.received - gate.checked_space_at >= SPACE_CHECK_BYTES:
             gate.checked_space_at = gate.received
@@ -138,22 +144,29 @@ class GatedChannel(http.HTTPChannel):
         )
         done = defer.Deferred.fromFuture(check)
         done.addCallbacks(
-            lambda who: self._checked(request, who, by_key=bool(given.key)),
+            lambda found: self._checked(request, found, by_key=bool(given.key)),
             lambda failure: self._check_failed(request, failure),
         )
 
     def _checked(
-        self, request: RawBodyRequest, who: str | None, *, by_key: bool
+        self, request: RawBodyRequest, found: bodylimits.Uploader, *, by_key: bool
     ) -> None:
         gate = request.gate
         if gate is None or gate.refused or self.transport is None:
             return
         if request not in self.requests or request.channel is None:
             return  # the client left while its credentials were checked
+        who = found.who
         if who is None:
             why = "invalid or revoked API key" if by_key else "session not logged in"
             self.refuse(request, 401, why)
             return
+        if not found.operator:
+            gate.small_only = "uploading a job needs the operator role on a printer"
+            gate.cap = bodylimits.body_cap(upload=False)
+            if gate.length is not None and gate.length > gate.cap:
+                self.refuse(request, 403, gate.small_only)
+                return
         why = bodylimits.storage_refusal(gate.length or 0)
         if why:
             self.refuse(request, 507, why)

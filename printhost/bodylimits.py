@@ -5,8 +5,10 @@ routes, their size caps, who may send one, and how many at once.
 is not (or only its first bytes are): a body over its cap is refused with 413 as soon
 as the cap is crossed (at once when Content-Length says so), an upload without a
 valid API key or session gets 401 before its body is read (`Expect: 100-continue` is
-answered only after the check), one that would not fit in the job storage gets 507,
-and a user with `PRINTHOST_UPLOADS_PER_CALLER` uploads in flight gets 429.
+answered only after the check), one from a user who may upload nowhere (no operator
+role) gets 403 once it is larger than a body that is not an upload, one that would
+not fit in the job storage gets 507, and a user with `PRINTHOST_UPLOADS_PER_CALLER`
+uploads in flight gets 429.
 
 No Twisted here: the server feeds plain values (method, target, headers) in.
 """
@@ -125,8 +127,20 @@ def credentials(
     return Credentials(key=key, session=session)
 
 
-def uploader(given: Credentials) -> str | None:
-    """Who *given* names ("user:<id>"), or None when it names nobody active.
+@dataclass(frozen=True)
+class Uploader:
+    """Who sends an upload, as far as the gate can tell before its body."""
+
+    #: "user:<id>" (the upload slots' name for them), or None: nobody active.
+    who: str | None
+    #: They hold the operator role on some printer (within their key's role).
+    #: Which printer, or the farm, the view decides once the body is in; one
+    #: who may upload nowhere may send no more than a body that is not an upload.
+    operator: bool = False
+
+
+def uploader(given: Credentials) -> Uploader:
+    """Who *given* names, and whether they may upload anywhere.
 
     A key that matches nobody is refused even with a session, as the API does.
     Reads the database: call it from a thread (`database_sync_to_async`).
@@ -135,20 +149,26 @@ def uploader(given: Credentials) -> str | None:
 
     from django.contrib.auth import SESSION_KEY, get_user_model
 
-    from printhost.access import find_key
+    from printhost.access import find_key, highest_role
+    from printhost.models import Role
 
     if given.key is not None:
         key = find_key(given.key)
-        return f"user:{key.user_id}" if key is not None else None
+        if key is None:
+            return Uploader(None)
+        role = highest_role(key.user)
+        if role is not None and key.role is not None:
+            role = min(role, key.role)
+        return Uploader(f"user:{key.user_id}", (role or 0) >= Role.OPERATOR)
     if not given.session:
-        return None
+        return Uploader(None)
     engine = import_module(settings.SESSION_ENGINE)
     store: SessionBase = engine.SessionStore(session_key=given.session)
     user_id = store.load().get(SESSION_KEY)
-    if user_id is None:
-        return None
-    users = get_user_model().objects.filter(pk=user_id, is_active=True)
-    return f"user:{user_id}" if users.exists() else None
+    user = get_user_model().objects.filter(pk=user_id, is_active=True).first()
+    if user is None:
+        return Uploader(None)
+    return Uploader(f"user:{user.pk}", (highest_role(user) or 0) >= Role.OPERATOR)
 
 
 class UploadSlots:

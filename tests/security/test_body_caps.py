@@ -231,3 +231,41 @@ def test_a_refused_patch_leaves_its_resumable_upload_as_it_was(served: Served) -
         assert last.json()["data"]["complete"] is True
     wait_for(lambda: spool_is_empty(served), 30, "no body kept in the temp folder")
     assert b"G28\n" * 500 + b"G1 X1\n" * 333 + b"\n\n" in job_files(served).values()
+
+
+def test_an_upload_from_who_may_upload_nowhere_is_refused_before_its_body(
+    served: Served,
+) -> None:
+    """A viewer's key: 403 instead of `100 Continue`, and once a body streaming
+    without Expect is larger than one that is not an upload; nothing is kept. The
+    route's other calls, with their small bodies, are answered as before."""
+    viewer = served.host.add_user("watcher", "viewer", printer="p1")
+    before = job_files(served)
+    head = [
+        "POST /printer/job/p1?a=upload HTTP/1.1",
+        f"X-Api-Key: {viewer}",
+        f"Content-Length: {JOB_CAP}",
+    ]
+    asked = exchange(served.host.port, head, zeros(JOB_CAP), expect=True)
+    assert asked.status == 403, asked
+    assert asked.interim == []  # never told to send the body
+    assert asked.error == "uploading a job needs the operator role on a printer"
+    farm = exchange(
+        served.host.port,
+        ["POST /printer/job/farm?a=upload HTTP/1.1", f"Authorization: Bearer {viewer}",
+         "Transfer-Encoding: chunked"],
+        chunked(BIG),
+    )  # fmt: skip
+    assert farm.status == 403, farm
+    assert farm.sent < SLACK
+    form = b"a=list"
+    listed = exchange(
+        served.host.port,
+        ["POST /printer/job/p1 HTTP/1.1", f"X-Api-Key: {viewer}",
+         "Content-Type: application/x-www-form-urlencoded",
+         f"Content-Length: {len(form)}"],
+        [form],
+    )  # fmt: skip
+    assert listed.status == 200, listed
+    wait_for(lambda: spool_is_empty(served), 30, "no body kept in the temp folder")
+    assert job_files(served) == before
