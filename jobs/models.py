@@ -292,9 +292,7 @@ class Job(models.Model):
                 filament_used=found.filament_used,
             )
         if running and out["eta"] is not None:
-            out["ends_at"] = (
-                shared_now() + timedelta(seconds=out["eta"])
-            ).isoformat()
+            out["ends_at"] = (shared_now() + timedelta(seconds=out["eta"])).isoformat()
         return out
 
     def as_dict(self) -> dict[str, Any]:
