@@ -34,19 +34,25 @@ def key_digest(key: str) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
 
 
+def number(value: object) -> float | None:
+    """*value* (from a JSON field a worker writes: a heartbeat's load, a
+    printer's link figures) as a finite float, or None (missing, text, NaN, a
+    bool)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
 def load_figures(load: object) -> tuple[float | None, int | None]:
     """The one-minute load average and the CPU count of a heartbeat's `load`,
     each None unless it is a number (the host writes the row: a bad value must
     not break the pages that show it)."""
     load = load if isinstance(load, dict) else {}
-    averages, cpus = load.get("loadavg"), load.get("cpus")
-    first = averages[0] if isinstance(averages, list) and averages else None
-    number = isinstance(first, int | float) and not isinstance(first, bool)
-    counted = isinstance(cpus, int) and not isinstance(cpus, bool) and cpus > 0
-    return (
-        first if number and math.isfinite(first) else None,
-        cpus if counted else None,
-    )
+    averages, cpus = load.get("loadavg"), number(load.get("cpus"))
+    first = number(averages[0]) if isinstance(averages, list) and averages else None
+    counted = cpus is not None and cpus >= 1 and cpus.is_integer()
+    return first, int(cpus) if counted else None
 
 
 class WorkerHost(models.Model):

@@ -133,7 +133,7 @@ class Uploader:
 
     #: "user:<id>" (the upload slots' name for them), or None: nobody active.
     who: str | None
-    #: They hold the operator role on some printer (within their key's role).
+    #: They hold the operator role on some printer (within their key's).
     #: Which printer, or the farm, the view decides once the body is in; one
     #: who may upload nowhere may send no more than a body that is not an upload.
     operator: bool = False
@@ -149,26 +149,27 @@ def uploader(given: Credentials) -> Uploader:
 
     from django.contrib.auth import SESSION_KEY, get_user_model
 
-    from printhost.access import find_key, highest_role
+    from printhost.access import Caller, find_key
     from printhost.models import Role
 
     if given.key is not None:
         key = find_key(given.key)
         if key is None:
             return Uploader(None)
-        role = highest_role(key.user)
-        if role is not None and key.role is not None:
-            role = min(role, key.role)
-        return Uploader(f"user:{key.user_id}", (role or 0) >= Role.OPERATOR)
-    if not given.session:
+        caller = Caller(client="upload", user=key.user, key=key)
+    elif given.session:
+        engine = import_module(settings.SESSION_ENGINE)
+        store: SessionBase = engine.SessionStore(session_key=given.session)
+        user_id = store.load().get(SESSION_KEY)
+        user = get_user_model().objects.filter(pk=user_id, is_active=True).first()
+        if user is None:
+            return Uploader(None)
+        caller = Caller(client="upload", user=user)
+    else:
         return Uploader(None)
-    engine = import_module(settings.SESSION_ENGINE)
-    store: SessionBase = engine.SessionStore(session_key=given.session)
-    user_id = store.load().get(SESSION_KEY)
-    user = get_user_model().objects.filter(pk=user_id, is_active=True).first()
-    if user is None:
-        return Uploader(None)
-    return Uploader(f"user:{user.pk}", (highest_role(user) or 0) >= Role.OPERATOR)
+    # The views' own reckoning (the key's printer and role, the user's roles).
+    operator = bool(caller.printers(Role.OPERATOR, fields=("id",)))
+    return Uploader(f"user:{caller.user.pk}", operator)
 
 
 class UploadSlots:

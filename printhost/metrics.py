@@ -39,7 +39,6 @@ that is missing or not a finite number is left out, never a failed scrape.
 
 from __future__ import annotations
 
-import math
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
@@ -49,7 +48,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
 from jobs.models import Job
 from printers.dbclock import shared_time
-from printers.hosts import WorkerHost
+from printers.hosts import WorkerHost, number
 from printers.models import Printer
 
 if TYPE_CHECKING:
@@ -89,14 +88,6 @@ LINK_COUNTERS = (
     ("printhost_printer_bytes_sent", "bytes_sent", "Bytes written to the port since the connect"),
     ("printhost_printer_bytes_received", "bytes_received", "Bytes read from the port since the connect"),
 )  # fmt: skip
-
-
-def number(value: object) -> float | None:
-    """*value* as a finite float, or None (missing, text, NaN, a bool)."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
 
 
 def epoch(text: object) -> float | None:

@@ -7,6 +7,7 @@ by the upkeep (`printers/upkeep.py`, from Celery beat), never in the worker's lo
 from __future__ import annotations
 
 import logging
+import time
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
@@ -14,7 +15,7 @@ from django.db import connections, transaction
 from django.db.models import Max
 
 from printers import broadcast
-from printers.dbclock import shared_now, shared_time
+from printers.dbclock import clock_offset, shared_now
 from printers.models import ResponseLine
 
 if TYPE_CHECKING:
@@ -80,11 +81,13 @@ class ResponseLog:
         """
         self.last_id += 1
         # The line's time: one datetime for lines within STAMP_SECONDS (aware
-        # UTC, as timezone.now() is with USE_TZ, always on, from one reading; by
-        # the shared clock, printers/dbclock.py).
-        wall = shared_time()
+        # UTC, as timezone.now() is with USE_TZ, always on, from one reading),
+        # by the shared clock (printers/dbclock.py), whose offset is added only
+        # when a new datetime is made: this runs twice a line.
+        wall = time.time()
         if not 0.0 <= wall - self._stamp_wall < STAMP_SECONDS:
-            self._stamp_wall, self._stamp_at = wall, datetime.fromtimestamp(wall, UTC)
+            self._stamp_wall = wall
+            self._stamp_at = datetime.fromtimestamp(wall + clock_offset(), UTC)
         self._buffer.append((self.last_id, self._stamp_at, text, int(kind)))
         if len(self._buffer) > HELD_LINES:
             self._drop_oldest()

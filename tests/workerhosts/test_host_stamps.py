@@ -9,9 +9,7 @@ database (SQLite, in-process) keeps the true time.
 
 from __future__ import annotations
 
-import time
-from datetime import UTC, datetime, timedelta
-from unittest import mock
+from datetime import UTC, datetime
 
 import pytest
 from django.utils import timezone
@@ -28,21 +26,6 @@ from tests.conftest import wait_for
 pytestmark = pytest.mark.django_db
 
 HOUR = 3600.0
-
-
-@pytest.fixture
-def hour_behind(monkeypatch: pytest.MonkeyPatch):
-    """This computer's clock an hour behind the database's; the offset this
-    process learned is put back afterwards."""
-    monkeypatch.setattr(dbclock, "_offset", 0.0)
-    real_now, real_time = timezone.now, time.time
-    with (
-        mock.patch(
-            "django.utils.timezone.now", lambda: real_now() - timedelta(hours=1)
-        ),
-        mock.patch("time.time", lambda: real_time() - HOUR),
-    ):
-        yield
 
 
 def near_database_time(when: datetime, seconds: float = 120.0) -> bool:

@@ -9,10 +9,8 @@ the job's start are stamped, as a worker host stamps them.
 
 from __future__ import annotations
 
-import time
 from datetime import timedelta
 from typing import TYPE_CHECKING, Any
-from unittest import mock
 
 import pytest
 from asgiref.sync import async_to_sync
@@ -21,7 +19,6 @@ from django.db import connection
 from django.http import HttpResponse
 from django.test import Client, RequestFactory
 from django.test.utils import CaptureQueriesContext
-from django.utils import timezone
 
 from jobs.models import Job
 from printers import dbclock
@@ -36,22 +33,6 @@ if TYPE_CHECKING:
 pytestmark = pytest.mark.django_db
 
 HOUR = 3600.0
-
-
-@pytest.fixture
-def hour_ahead(monkeypatch: pytest.MonkeyPatch):
-    """This computer's clock an hour ahead of the database's, its offset never
-    read yet (the conftest takes it as just read)."""
-    monkeypatch.setattr(dbclock, "_offset", 0.0)
-    monkeypatch.setattr(dbclock, "_learned_at", float("-inf"))
-    real_now, real_time = timezone.now, time.time
-    with (
-        mock.patch(
-            "django.utils.timezone.now", lambda: real_now() + timedelta(hours=1)
-        ),
-        mock.patch("time.time", lambda: real_time() + HOUR),
-    ):
-        yield
 
 
 @pytest.fixture
