@@ -198,7 +198,9 @@ class Job(models.Model):
                 fields=["printer", "position", "id"],
                 name="job_queued",
                 condition=models.Q(state="queued"),
-            )
+            ),
+            # The farm's "last ended" of each printer; a printer's finished jobs.
+            models.Index(fields=["printer", "finished_at"], name="job_finished"),
         ]
 
     def __str__(self) -> str:

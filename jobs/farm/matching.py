@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from django.db.models import Exists, Max, OuterRef
+from django.db.models import Exists, OuterRef, Subquery
 from django.db.models.functions import Now
 
 from jobs.farm.models import FarmJob
@@ -54,11 +54,15 @@ def printer_rows() -> QuerySet[Printer]:
     `has_work` (one of their own queued or running) and `last_end` (when their last
     job finished)."""
     own_work = Job.objects.filter(printer=OuterRef("pk"), state__in=OWN_WORK)
+    # The newest end by the (printer, finished_at) index: one row a printer, where
+    # a Max over the join read every job the printer ever ran on each poll.
+    ends = Job.objects.filter(printer=OuterRef("pk"), finished_at__isnull=False)
+    newest_end = ends.order_by("-finished_at").values("finished_at")[:1]
     return (
         Printer.objects.select_related("worker_host")
         .annotate(
             has_work=Exists(own_work),
-            last_end=Max("jobs__finished_at"),
+            last_end=Subquery(newest_end),
             db_now=Now(),  # leases are judged by the database's clock
         )
         .order_by("slug")

@@ -20,6 +20,7 @@ from ninja.security.base import AuthBase
 from ninja.utils import check_csrf
 
 from jobs.gcode import BadGcode
+from jobs.listing import FINISHED_MOST, FINISHED_SHOWN
 from jobs.models import Job
 from jobs.sdcard import BadCardName, SdRefused
 from jobs.services import ChecksumMismatch, FileRemoved
@@ -28,7 +29,7 @@ from printhost.access import Caller, Forbidden, NotAuthenticated, caller_from_re
 from printhost.errors import DATABASE_AWAY, RETRY_AFTER_SECONDS
 
 if TYPE_CHECKING:
-    from collections.abc import Collection
+    from collections.abc import Collection, Mapping
 
 log = logging.getLogger("printhost.api")
 
@@ -173,6 +174,18 @@ def parse_int(value: str | None, name: str, *, default: int, minimum: int = 0) -
     if number < minimum:
         raise HttpError(400, f"{name} must be {minimum} or more, not {number}")
     return number
+
+
+def finished_asked(params: Mapping[str, Any]) -> int:
+    """How many finished jobs a job list should give (`finished`, 0 to
+    FINISHED_MOST), or a 400 that says what was wrong."""
+    value = params.get("finished")
+    count = parse_int(
+        None if value is None else str(value), "finished", default=FINISHED_SHOWN
+    )
+    if count > FINISHED_MOST:
+        raise HttpError(400, f"finished must be {FINISHED_MOST} or less, not {count}")
+    return count
 
 
 def install_error_handlers(api: Any) -> None:

@@ -36,6 +36,7 @@ from ninja.errors import HttpError
 
 from jobs import services
 from jobs.gcode import BadGcode
+from jobs.listing import printer_jobs
 from jobs.models import ACTIVE_STATES, Job, running_job
 from printers.models import Printer, ResponseLine
 from printhost import audit
@@ -43,6 +44,7 @@ from printhost.api import farm
 from printhost.api.common import (
     caller_of,
     envelope,
+    finished_asked,
     job_of,
     parse_int,
     printer_for,
@@ -183,7 +185,8 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
       `autostart`): the whole file at once.
     - `start` (`id`): queue a stored job.
     - `pause`, `resume`, `abort`: act on the running job.
-    - `list`: every job of the printer, queue order.
+    - `list` (optional `finished`, default 50, at most 500): the printer's open
+      jobs in queue order, then its newest finished ones (`jobs/listing.py`).
     - `delete` (`id`): remove a job and its file; a running job is refused (409).
     - `reprint` (`id`): queue a finished job's file again (410 once the upkeep
       removed the file, past the printer's `job_file_days`).
@@ -204,12 +207,7 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         return _farm_job_call(request, action, params)
     if action == "list":
         printer = printer_for(request, slug, Role.VIEWER)
-        jobs = (
-            Job.objects.filter(printer=printer)
-            .select_related("printer", "analysis")
-            .defer("analysis__result")
-        )
-        jobs = jobs.order_by("position", "id")
+        jobs = printer_jobs(printer, finished=finished_asked(params))
         return envelope([j.as_dict() for j in jobs])
     refuse_acting_get(request, f"job a={action}")
     if action == "upload":

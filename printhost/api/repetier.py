@@ -14,12 +14,14 @@ from django.http import HttpRequest, HttpResponse, JsonResponse
 from ninja import Router
 from ninja.errors import HttpError
 
+from jobs.listing import printer_jobs
 from jobs.models import Job, running_job
 from printers.models import Printer, QueuedCommand
 from printhost import __version__
 from printhost.api.common import (
     caller_of,
     envelope,
+    finished_asked,
     printer_for,
     refuse_acting_get,
     request_params,
@@ -158,12 +160,7 @@ def repetier_api(request: HttpRequest, slug: str) -> HttpResponse:
         return JsonResponse(answer)
     if call == "listJobs":
         printer = printer_for(request, slug, Role.VIEWER)
-        jobs = (
-            Job.objects.filter(printer=printer)
-            .select_related("printer", "analysis")
-            .defer("analysis__result")
-        )
-        jobs = jobs.order_by("position", "id")
+        jobs = printer_jobs(printer, finished=finished_asked(data))
         return JsonResponse({"data": [j.as_dict() for j in jobs]})
     if call == "getPrinterConfig":
         printer = printer_for(request, slug, Role.VIEWER)

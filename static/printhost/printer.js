@@ -196,12 +196,12 @@ function renderQueue() {
 function ordered(all) {
   const rank = (j) => (FINISHED.includes(j.state) ? 1 : 0);
   const live = all.filter((j) => !rank(j)).sort((a, b) => a.position - b.position || a.id - b.id);
-  const done = all.filter(rank).sort((a, b) => b.id - a.id).slice(0, 20);
+  const done = all.filter(rank); // the server's order: newest finished first
   return [...live, ...done];
 }
 
 async function reloadQueue() {
-  const data = await api("GET", `/printer/job/${base}?a=list`);
+  const data = await api("GET", `/printer/job/${base}?a=list&finished=20`);
   if (data) {
     jobs = ordered(data);
     renderQueue();
