@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 from django.conf import settings
 from django.db import models
+from django.db.models import F
 
 from printers.dbclock import shared_now
 
@@ -284,7 +285,7 @@ def record_run(job_id: object) -> HistoryEntry | None:
 
     *job_id* is the Job's id (a worker's stream carries it as its `ref`).
 
-    1. Read the Job row with its printer, user and analysis (not the analysis'
+    1. Read the Job row with its printer, uploader's name and analysis (not the analysis'
        result column, unless `analysis_of` has not read it in this process).
     2. Skip it if it never started, still runs, or copied a file to the SD card (H3).
     3. Work out the figures (H2) and the print time (H4).
@@ -292,8 +293,11 @@ def record_run(job_id: object) -> HistoryEntry | None:
     """
     from jobs.models import FINISHED_STATES, Job
 
+    # The uploader's name only: a worker host's database role reads no more of
+    # auth_user (printers/host_role.py).
     job = (
-        Job.objects.select_related("printer", "uploaded_by", "analysis")
+        Job.objects.select_related("printer", "analysis")
+        .annotate(uploader_name=F("uploaded_by__username"))
         .filter(pk=job_id)
         .first()
     )
@@ -303,7 +307,6 @@ def record_run(job_id: object) -> HistoryEntry | None:
         return None
     finished = job.finished_at or shared_now()
     figures = figures_of(job)
-    user = job.uploaded_by
     entry, _ = HistoryEntry.objects.update_or_create(
         job_number=job.pk,
         started_at=job.started_at,
@@ -316,8 +319,8 @@ def record_run(job_id: object) -> HistoryEntry | None:
             "sha256": job.sha256,
             "kind": job.kind,
             "size_bytes": job.size_bytes,
-            "user": user,
-            "user_name": user.get_username() if user is not None else "",
+            "user_id": job.uploaded_by_id,
+            "user_name": job.uploader_name or "",
             "origin": job.origin,
             "finished_at": finished,
             "outcome": job.state,

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from django.conf import settings
+from django.db import connection
 
+from printers.host_role import reads_keys
 from printhost.access import (
     Caller,
     NotAuthenticated,
@@ -102,6 +104,18 @@ def header_refusal(authorization: str, address: str = "") -> Refusal | None:
     if caller is None:
         return Refusal(401, "invalid or revoked API key")
     return caller_refusal(caller)
+
+
+def key_check_refusal() -> str:
+    """Why a worker host's metrics server could not check a scrape's API key ("" if
+    it can): a worker host on its own database role (printers/host_role.py) may not
+    read the farm's keys, so its scrapes need PRINTHOST_METRICS_TOKEN."""
+    if settings.PRINTHOST_METRICS_TOKEN or reads_keys(connection):
+        return ""
+    return (
+        "this database role may not read the farm's API keys (a worker host's own "
+        "role): set PRINTHOST_METRICS_TOKEN, which scrapes then show instead"
+    )
 
 
 def bind_refusal(bind: str) -> str:

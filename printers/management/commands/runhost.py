@@ -13,10 +13,12 @@ from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.core.management.base import BaseCommand, CommandError
+from django.db import connection
 
 from printers.heartbeat import HostRefused, HostRegistration
+from printers.host_role import missing_privileges
 from printers.supervisor import Supervisor
-from printhost.metrics_access import bind_refusal
+from printhost.metrics_access import bind_refusal, key_check_refusal
 from printhost.startup import secret_key_refusal
 
 if TYPE_CHECKING:
@@ -61,7 +63,7 @@ class Command(BaseCommand):
 
     def handle(self, *args: Any, **options: Any) -> None:
         if options["metrics_port"] and (
-            refusal := bind_refusal(options["metrics_bind"])
+            refusal := bind_refusal(options["metrics_bind"]) or key_check_refusal()
         ):
             raise CommandError(f"--metrics-bind: {refusal}")
         # Children (simulators: their --record check) see the same data directory.
@@ -108,6 +110,13 @@ class Command(BaseCommand):
             )
         if options["no_workers"]:
             raise CommandError("--worker-host runs workers: drop --no-workers")
+        if missing := missing_privileges(connection):
+            raise CommandError(
+                f"the database role {connection.settings_dict['USER']!r} lacks what a "
+                f"worker host needs: {'; '.join(missing)}. As the database's owner, "
+                "run the SQL of `manage.py worker_host grants ROLE` (again after "
+                "each migrate)"
+            )
         registration = HostRegistration(name)
         try:
             host = registration.claim()

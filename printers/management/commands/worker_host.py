@@ -1,4 +1,5 @@
-"""`manage.py worker_host add|key|list|release|remove NAME`: the farm's worker hosts."""
+"""`manage.py worker_host add|key|list|release|remove NAME`: the farm's worker hosts;
+`worker_host grants ROLE`: the SQL for their own database role."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from django.db.models import ProtectedError
 
 from printers.dbclock import learn_offset
 from printers.heartbeat import HostRefused, release
+from printers.host_role import BadRoleName, grant_statements
 from printers.hosts import WorkerHost
 
 if TYPE_CHECKING:
@@ -38,11 +40,24 @@ class Command(BaseCommand):
         release.add_argument("name")
         remove = actions.add_parser("remove", help="remove a host with no printers")
         remove.add_argument("name")
+        grants = actions.add_parser(
+            "grants",
+            help="print the SQL that gives a worker hosts' own database role what "
+            "it needs and no more (printers/host_role.py)",
+        )
+        grants.add_argument("role")
 
     def handle(self, *args: Any, **options: Any) -> None:
         action = options["action"]
         if action == "list":
             self._list()
+            return
+        if action == "grants":
+            try:
+                statements = grant_statements(options["role"])
+            except BadRoleName as error:
+                raise CommandError(str(error)) from None
+            self.stdout.write("\n".join(statements))
             return
         name = options["name"]
         if action == "add":

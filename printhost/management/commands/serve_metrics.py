@@ -25,7 +25,7 @@ from django.db import DatabaseError
 
 from printers.hosts import WorkerHost
 from printhost.longrunning import close_failed_connections
-from printhost.metrics_access import bind_refusal, header_refusal
+from printhost.metrics_access import bind_refusal, header_refusal, key_check_refusal
 from printhost.metrics_view import scrape
 
 if TYPE_CHECKING:
@@ -150,7 +150,7 @@ class Command(BaseCommand):
 
     def handle(self, *args: Any, **options: Any) -> None:
         name, bind, port = options["worker_host"], options["bind"], options["port"]
-        if refusal := bind_refusal(bind):
+        if refusal := bind_refusal(bind) or key_check_refusal():
             raise CommandError(refusal)
         if not WorkerHost.objects.filter(name=name).exists():
             known = ", ".join(WorkerHost.objects.values_list("name", flat=True))

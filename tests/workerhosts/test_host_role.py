@@ -1,0 +1,166 @@
+"""A worker host on its own PostgreSQL role, granted only what `worker_host grants`
+prints: it prints a job from the control plane's queue to the end, with its log,
+temperatures and history, and the role can read no password or key, change no
+printer's settings and queue no command; runhost refuses a role short of a grant
+before it drives anything."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from urllib.parse import urlsplit, urlunsplit
+
+import httpx
+import pytest
+
+from printers.sample_gcode import commands_of, segments
+from tests.conftest import HOST_COMMANDS, wait_for
+from tests.hosts import Host, free_port, import_or_skip, postgres_url
+from tests.ops.conftest import samples
+
+pytestmark = [pytest.mark.slow, pytest.mark.services]
+
+ADMIN = "postgresql://postgres@127.0.0.1:5432/postgres"
+
+
+def _as_role(url: str, role: str) -> str:
+    parts = urlsplit(url)
+    return urlunsplit(parts._replace(netloc=f"{role}@{parts.hostname}:{parts.port}"))
+
+
+@pytest.fixture
+def farm(tmp_path: Path) -> Iterator[tuple[Host, Host, str]]:
+    """A migrated control plane, a worker host `shelf-1` with printer p1 and its
+    key, and a login role of no privileges (dropped after the test)."""
+    psycopg = import_or_skip("psycopg")
+    database = postgres_url()
+    role = f"ph_host_{uuid.uuid4().hex[:8]}"
+    with psycopg.connect(ADMIN, autocommit=True) as connection:
+        connection.execute(f'CREATE ROLE "{role}" LOGIN')
+    control = Host(tmp_path / "control", database)
+    shelf = Host(tmp_path / "shelf", database)
+    for host in (control, shelf):
+        host.folder.mkdir()
+    control.migrate()
+    added = control.manage("worker_host", "add", "shelf-1").stdout
+    shelf.env["PRINTHOST_HOST_KEY"] = added.split("key (shown once): ")[1].split()[0]
+    try:
+        yield control, shelf, role
+    finally:
+        with psycopg.connect(database, autocommit=True) as connection:
+            connection.execute(f'DROP OWNED BY "{role}"')
+        with psycopg.connect(ADMIN, autocommit=True) as connection:
+            connection.execute(f'DROP ROLE "{role}"')
+
+
+def _grant(control: Host, role: str) -> None:
+    import psycopg
+
+    sql = control.manage("worker_host", "grants", role).stdout
+    with psycopg.connect(control.database_url, autocommit=True) as connection:
+        for statement in sql.splitlines():
+            connection.execute(statement)
+
+
+def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tmp_path):
+    import psycopg
+
+    control, shelf, role = farm
+    record = shelf.add_simulated_printer(
+        "p1", sim_args="--time-scale 0", temperature_interval=1
+    )
+    shelf.shell(
+        "from printers.models import Printer; from printers.hosts import WorkerHost; "
+        "Printer.objects.filter(slug='p1').update("
+        "worker_host=WorkerHost.objects.get(name='shelf-1'))"
+    )
+    text = segments(3000)
+    source = tmp_path / "part.gcode"
+    source.write_text(text)
+    control.manage("add_job", "p1", str(source))
+    _grant(control, role)
+    shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
+    port = str(free_port())
+    metrics = ("--metrics-port", port)
+    # Its role may not check an admin's key: a scrape needs the token.
+    refused = shelf.manage("runhost", "--no-web", "--worker-host", "shelf-1", *metrics, check=False)  # fmt: skip
+    assert refused.returncode != 0
+    assert "set PRINTHOST_METRICS_TOKEN" in refused.stderr
+    shelf.env["PRINTHOST_METRICS_TOKEN"] = "role-test-token"
+
+    with control.running("--no-workers"):
+        shelf.env["PRINTHOST_CONTROL_URL"] = control.url
+        with shelf.running("--worker-host", "shelf-1", *metrics, web=False):
+            state = lambda: control.query("SELECT state, message FROM jobs_job")[0]
+            wait_for(lambda: state()[0] == "completed", 90, "the job to complete")
+            sampled = "SELECT count(*) FROM printers_temperaturesample"
+            wait_for(lambda: control.query(sampled)[0][0] > 0, 30, "a sample")
+            scrape = lambda: httpx.get(
+                f"http://127.0.0.1:{port}/metrics",
+                headers={"Authorization": "Bearer role-test-token"},
+                timeout=10,
+            )
+            wait_for(lambda: _answers(scrape), 30, "the host's metrics")
+            states = [
+                dict(labels) for name, labels in samples(scrape().text)
+                if name == "printhost_printer_state"
+            ]  # fmt: skip
+            assert {s["printer"] for s in states} == {"p1"}
+        assert "lacks" not in shelf.log_tail(200)
+
+    ran = [
+        c for c in record.read_text().splitlines() if not c.startswith(HOST_COMMANDS)
+    ]
+    assert ran == commands_of(text)
+    assert control.query("SELECT outcome FROM jobs_historyentry") == [("completed",)]
+    assert control.query("SELECT count(*) FROM printers_responseline")[0][0] > 0
+
+    refused = (
+        "SELECT password FROM auth_user",
+        "SELECT key_hash FROM printhost_apikey",
+        "SELECT * FROM django_session",
+        "UPDATE printers_printer SET simulator = 'x'",
+        "UPDATE printers_workerhost SET key_hash = ''",
+        "UPDATE jobs_job SET file = 'other.gcode'",
+        "INSERT INTO printers_queuedcommand (printer_id, text, state, origin) "
+        "SELECT id, 'M104 S300', 'pending', 'x' FROM printers_printer",
+        "INSERT INTO printhost_printerrole (user_id, role) VALUES (1, 40)",
+    )
+    with psycopg.connect(shelf.env["DATABASE_URL"], autocommit=True) as connection:
+        for sql in refused:
+            with pytest.raises(psycopg.errors.InsufficientPrivilege):
+                connection.execute(sql)
+
+
+def _answers(scrape) -> bool:
+    try:
+        return scrape().status_code == 200
+    except httpx.TransportError:
+        return False
+
+
+def test_runhost_refuses_a_role_short_of_a_grant_and_names_it(farm):
+    import psycopg
+
+    control, shelf, role = farm
+    _grant(control, role)
+    with psycopg.connect(control.database_url, autocommit=True) as connection:
+        connection.execute(f'REVOKE UPDATE ON printers_queuedcommand FROM "{role}"')
+    shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
+    result = shelf.manage(
+        "runhost", "--no-web", "--worker-host", "shelf-1", check=False
+    )
+    assert result.returncode != 0
+    assert f"the database role '{role}' lacks" in result.stderr
+    assert "UPDATE (state) ON printers_queuedcommand" in result.stderr
+    assert "worker_host grants" in result.stderr
+    # Nothing was claimed: the host row was never written by the refused runhost.
+    assert control.query("SELECT instance FROM printers_workerhost") == [("",)]
+
+
+def test_grants_refuse_a_role_name_that_is_not_plain(tmp_path):
+    host = Host(tmp_path)
+    result = host.manage("worker_host", "grants", 'x"; DROP TABLE', check=False)
+    assert result.returncode != 0
+    assert "is not a plain role name" in result.stderr
