@@ -91,6 +91,7 @@ class PrinterAdmin(admin.ModelAdmin):
                     "pause_script",
                     "resume_script",
                     "abort_script",
+                    "quickstop_on_abort",
                     "auto_start",
                 ]
             },

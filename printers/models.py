@@ -99,6 +99,15 @@ class Printer(models.Model):
     pause_script = models.TextField(blank=True, validators=[validate_script])
     resume_script = models.TextField(blank=True, validators=[validate_script])
     abort_script = models.TextField(blank=True, validators=[validate_script])
+    quickstop_on_abort = models.BooleanField(
+        default=False,
+        help_text="Marlin: a job that is aborted or fails gets M410 (quickstop) ahead "
+        "of the abort script, so the moves in the planner (seconds of motion, a "
+        "laser's beam or a spindle's cut among them) stop where the tool is. Marlin "
+        "may lose steps stopping mid-move: home in the abort script before moving "
+        "again. For lasers and CNC; off, the planned moves run out (as OctoPrint "
+        "does)",
+    )
     auto_start = models.BooleanField(
         default=False, help_text="start the next job without waiting for a clear bed"
     )
@@ -232,11 +241,21 @@ class Printer(models.Model):
         return f"{self.name} ({self.slug})"
 
     def clean(self) -> None:
-        """`farm` names the farm queue in upload URLs (/printer/job/farm, /p/farm/)."""
+        """`farm` names the farm queue in upload URLs (/printer/job/farm, /p/farm/);
+        the quickstop is Marlin's M410."""
         if self.slug in RESERVED_SLUGS:
             raise ValidationError(
                 {"slug": f"{self.slug!r} is reserved for the farm queue"},
                 code="reserved",
+            )
+        if self.quickstop_on_abort and self.firmware != self.Firmware.MARLIN:
+            raise ValidationError(
+                {
+                    "quickstop_on_abort": "the quickstop is Marlin's M410: GRBL holds "
+                    "and resets on an abort by itself; other firmware runs the abort "
+                    "script"
+                },
+                code="marlin_only",
             )
 
     @property

@@ -125,8 +125,9 @@ def make_job(storage: Path, tmp_path: Path) -> Callable[..., object]:
     return factory
 
 
-#: Commands the worker sends by itself (hello, temperatures), not part of any job.
-HOST_COMMANDS = ("M110", "M115", "M105", "M155", "M876", "$I")
+#: Commands the worker sends by itself (hello, temperatures, the quickstop after a
+#: Marlin job that failed or was aborted, when asked for), not part of any job.
+HOST_COMMANDS = ("M110", "M115", "M105", "M155", "M876", "M410", "$I")
 
 
 def job_lines(sim: Sim) -> list[str]:

@@ -238,10 +238,16 @@ class Reactions:
             self.host.run_held_scripts()  # GRBL's abort script, after its reset
 
     def stop_motion_after_error(self: PrinterWorker) -> None:
-        """GRBL executes what it buffered even after an error or an abort: hold the
-        feed, then reset it once held (printers/worker/emergency.py)."""
+        """The machine runs the moves it buffered even after an error or an abort.
+        GRBL: hold the feed, then reset it once held (printers/worker/emergency.py).
+        Marlin with `quickstop_on_abort`: M410 ahead of everything queued, so the
+        moves its planner holds (up to 16: seconds of motion) are dropped where the
+        tool is; the few commands it received and has not planned yet still run,
+        then the abort script. Off by default: stopping mid-move may cost steps."""
         if self.printer.is_grbl:
             hold_then_reset(self, self.clock())
+        elif self.printer.quickstop_on_abort and self.transport is not None:
+            self.protocol.send_emergency("M410", self.clock())
 
     # -- stream host events -----------------------------------------------------
 
@@ -332,8 +338,8 @@ class Reactions:
         self.note(f"{text}: {stream.message}" if stream.message else text)
         if state == Job.State.FAILED:
             self.last_stream_error = stream.message
-        if state in (Job.State.FAILED, Job.State.ABORTED):
-            self.stop_motion_after_error()
+        if state in (Job.State.FAILED, Job.State.ABORTED) and not upload:
+            self.stop_motion_after_error()  # a copy to the card moved nothing
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
         self.hold_or_run(partial(self._finish, stream, state))

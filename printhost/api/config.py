@@ -31,7 +31,8 @@ SETTINGS = (
     "name", "enabled", "port", "baud", "firmware", "checksums", "flow", "rx_buffer",
     "bufsize", "max_line_length", "ack_timeout", "busy_timeout", "max_resends",
     "temperature_interval", "status_interval", "connect_script", "start_script",
-    "end_script", "pause_script", "resume_script", "abort_script", "auto_start",
+    "end_script", "pause_script", "resume_script", "abort_script",
+    "quickstop_on_abort", "auto_start",
     "response_log_limit", "job_file_days",
 )  # fmt: skip
 #: Settings only a superuser may change: they name what the server opens.
