@@ -164,3 +164,17 @@ def test_grants_refuse_a_role_name_that_is_not_plain(tmp_path):
     result = host.manage("worker_host", "grants", 'x"; DROP TABLE', check=False)
     assert result.returncode != 0
     assert "is not a plain role name" in result.stderr
+
+
+def test_runhost_on_a_database_older_than_its_code_says_migrate_first(farm):
+    import psycopg
+
+    control, shelf, _ = farm
+    with psycopg.connect(control.database_url, autocommit=True) as connection:
+        connection.execute("ALTER TABLE printers_printer DROP COLUMN link_stats")
+    result = shelf.manage(
+        "runhost", "--no-web", "--worker-host", "shelf-1", check=False
+    )
+    assert result.returncode != 0
+    assert "link_stats" in result.stderr
+    assert "run manage.py migrate on the control plane" in result.stderr

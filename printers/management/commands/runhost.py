@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from django.conf import settings
 from django.core.management.base import BaseCommand, CommandError
-from django.db import connection
+from django.db import ProgrammingError, connection
 
 from printers.heartbeat import HostRefused, HostRegistration
 from printers.host_role import missing_privileges
@@ -110,7 +110,14 @@ class Command(BaseCommand):
             )
         if options["no_workers"]:
             raise CommandError("--worker-host runs workers: drop --no-workers")
-        if missing := missing_privileges(connection):
+        try:
+            missing = missing_privileges(connection)
+        except ProgrammingError as error:  # a table or column this code writes
+            raise CommandError(
+                f"the database's tables are not this code's ({error}): run "
+                "manage.py migrate on the control plane before upgrading its hosts"
+            ) from None
+        if missing:
             raise CommandError(
                 f"the database role {connection.settings_dict['USER']!r} lacks what a "
                 f"worker host needs: {'; '.join(missing)}. As the database's owner, "
