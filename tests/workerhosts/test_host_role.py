@@ -1,8 +1,9 @@
-"""A worker host on its own PostgreSQL role, granted only what `worker_host grants`
-prints: it prints a job from the control plane's queue to the end, with its log,
-temperatures and history, and the role can read no password or key, change no
-printer's settings and queue no command; runhost refuses a role short of a grant
-before it drives anything."""
+"""A control plane and a worker host as separate installations on one PostgreSQL,
+the host on its own role granted only what `worker_host grants` prints: the host
+runs its printer, fetches the job's file over HTTP and prints it exactly, with its
+log, temperatures, heartbeat and history; the control plane drives no printer. The
+role can read no password or key, change no printer's settings and queue no
+command; runhost refuses a role short of a grant before it drives anything."""
 
 from __future__ import annotations
 
@@ -91,9 +92,14 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
 
     with control.running("--no-workers"):
         shelf.env["PRINTHOST_CONTROL_URL"] = control.url
-        with shelf.running("--worker-host", "shelf-1", *metrics, web=False):
+        with shelf.running("--worker-host", "shelf-1", *metrics, web=False) as runhost:
             state = lambda: control.query("SELECT state, message FROM jobs_job")[0]
             wait_for(lambda: state()[0] == "completed", 90, "the job to complete")
+            host = control.query(
+                "SELECT instance, printers, version FROM printers_workerhost"
+            )[0]
+            assert str(runhost.pid) in host[0] and host[2]
+            assert '"p1"' in str(host[1]).replace("'", '"')
             sampled = "SELECT count(*) FROM printers_temperaturesample"
             wait_for(lambda: control.query(sampled)[0][0] > 0, 30, "a sample")
             scrape = lambda: httpx.get(
@@ -108,11 +114,17 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
             ]  # fmt: skip
             assert {s["printer"] for s in states} == {"p1"}
         assert "lacks" not in shelf.log_tail(200)
+        assert control.query("SELECT instance FROM printers_workerhost")[0][0] == ""
 
     ran = [
         c for c in record.read_text().splitlines() if not c.startswith(HOST_COMMANDS)
     ]
     assert ran == commands_of(text)
+    sha = control.query("SELECT sha256 FROM jobs_job")[0][0]
+    assert (shelf.folder / "cache" / "jobs" / sha).read_text() == text
+    assert not (shelf.folder / "jobs").exists()  # no job storage on the host
+    assert "worker:p1" not in control.log_tail(200)  # the control plane drove none
+    assert "fetches job" in control.log_tail(200)
     assert control.query("SELECT outcome FROM jobs_historyentry") == [("completed",)]
     assert control.query("SELECT count(*) FROM printers_responseline")[0][0] > 0
 
