@@ -285,8 +285,9 @@ def record_run(job_id: object) -> HistoryEntry | None:
 
     *job_id* is the Job's id (a worker's stream carries it as its `ref`).
 
-    1. Read the Job row with its printer, uploader's name and analysis (not the analysis'
-       result column, unless `analysis_of` has not read it in this process).
+    1. Read the Job row with its printer, uploader's name and analysis (not the
+       analysis' result column, unless `analysis_of` has not read it in this
+       process).
     2. Skip it if it never started, still runs, or copied a file to the SD card (H3).
     3. Work out the figures (H2) and the print time (H4).
     4. Insert the entry, or update the one this run already has.

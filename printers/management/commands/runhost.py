@@ -62,10 +62,11 @@ class Command(BaseCommand):
         parser.add_argument("--metrics-bind", default="127.0.0.1")
 
     def handle(self, *args: Any, **options: Any) -> None:
-        if options["metrics_port"] and (
-            refusal := bind_refusal(options["metrics_bind"]) or key_check_refusal()
-        ):
-            raise CommandError(f"--metrics-bind: {refusal}")
+        if options["metrics_port"]:
+            if refusal := bind_refusal(options["metrics_bind"]):
+                raise CommandError(f"--metrics-bind: {refusal}")
+            if refusal := key_check_refusal():
+                raise CommandError(f"--metrics-port: {refusal}")
         # Children (simulators: their --record check) see the same data directory.
         os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
         worker_host = self._worker_host(options)

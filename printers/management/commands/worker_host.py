@@ -42,7 +42,7 @@ class Command(BaseCommand):
         remove.add_argument("name")
         grants = actions.add_parser(
             "grants",
-            help="print the SQL that gives a worker hosts' own database role what "
+            help="print the SQL that gives a worker host's own database role what "
             "it needs and no more (printers/host_role.py)",
         )
         grants.add_argument("role")
