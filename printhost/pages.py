@@ -14,7 +14,8 @@ from django.contrib.auth.decorators import login_required
 from django.db.models import Max
 from django.shortcuts import get_object_or_404, render
 
-from jobs.models import FINISHED_STATES, Job
+from jobs.listing import printer_jobs
+from jobs.models import Job
 from printers.models import Printer, ResponseLine
 from printhost.access import Caller
 from printhost.api.shapes import printer_state
@@ -25,7 +26,8 @@ if TYPE_CHECKING:
 
 #: Response lines rendered with the printer page; the websocket sends the rest.
 TERMINAL_LINES = 200
-#: Finished jobs listed in a printer's queue panel (newest first after the queue).
+#: Finished jobs listed in a printer's queue panel (newest first after the queue);
+#: printer.js asks the job list for as many when it reloads the panel.
 FINISHED_SHOWN = 20
 
 
@@ -187,23 +189,11 @@ def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
     )
     lines.reverse()
     newest = ResponseLine.objects.filter(printer=printer).aggregate(m=Max("seq"))["m"]
-    queue = list(
-        Job.objects.filter(printer=printer)
-        .select_related("printer", "analysis")
-        .defer("analysis__result")
-        .exclude(state__in=FINISHED_STATES)
-        .order_by("position", "id")
-    )
-    finished = list(
-        Job.objects.filter(printer=printer, state__in=FINISHED_STATES)
-        .select_related("printer", "analysis")
-        .defer("analysis__result")
-        .order_by("-id")[:FINISHED_SHOWN]
-    )
+    jobs = printer_jobs(printer, finished=FINISHED_SHOWN)
     context = card(printer, caller) | {
         "lines": lines,
         "last_id": newest or 0,
-        "jobs": [j.as_dict() for j in queue + finished],
+        "jobs": [j.as_dict() for j in jobs],
         "grbl": printer.is_grbl,
         "steps": ["0.1", "1", "10", "100"],
     }
