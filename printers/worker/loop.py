@@ -117,6 +117,8 @@ class PrinterWorker(PortHandling, Reactions, Spooling, DatabaseTurns, PrinterSta
         self.expect_reset = False
         #: A GRBL job stopped: the soft reset owed after its feed hold, by then.
         self.reset_due: float | None = None
+        #: The stream a Marlin quickstop (M410) was sent for: one per stopped job.
+        self.quickstopped: Stream | None = None
         self.last_stream_error = ""
         #: The start script of the job being started (its failure fails the job).
         self.start_script: Stream | None = None

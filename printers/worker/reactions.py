@@ -99,11 +99,14 @@ class Reactions:
             case ev.Alarm(message=message):
                 self._on_alarm(message)
             case ev.FirmwareError(message=message):
-                if self.host.fail_stream(f"the firmware reported an error: {message}"):
+                stream = self.host.current_stream
+                if stream is not None and self.host.fail_stream(
+                    f"the firmware reported an error: {message}"
+                ):
                     # Nothing more of the job goes, the lines waiting to be sent
                     # again included.
                     self.protocol.abandon()
-                    self.stop_motion_after_error()
+                    self.stop_motion_after_error(stream)
             case ev.LinkFailed(message=message):
                 self.stop_streams(message, note=True)
                 self._close()
@@ -237,16 +240,28 @@ class Reactions:
         if not self.halted and self.reset_due is None:
             self.host.run_held_scripts()  # GRBL's abort script, after its reset
 
-    def stop_motion_after_error(self: PrinterWorker) -> None:
+    def stop_motion_after_error(self: PrinterWorker, stream: Stream) -> None:
         """The machine runs the moves it buffered even after an error or an abort.
         GRBL: hold the feed, then reset it once held (printers/worker/emergency.py).
         Marlin with `quickstop_on_abort`: M410 ahead of everything queued, so the
         moves its planner holds (up to 16: seconds of motion) are dropped where the
         tool is; the few commands it received and has not planned yet still run,
-        then the abort script. Off by default: stopping mid-move may cost steps."""
+        then the abort script. Off by default: stopping mid-move may cost steps.
+
+        Asked twice for a firmware error (at once, and when the stream ends), it
+        stops once: a second M410 could cut the abort script's homing short. A copy
+        to the SD card moved nothing, and a line now would go into its file."""
+        side = stream.printer_side
+        if side is not None and side.exclusive:
+            return
         if self.printer.is_grbl:
-            hold_then_reset(self, self.clock())
-        elif self.printer.quickstop_on_abort and self.transport is not None:
+            hold_then_reset(self, self.clock())  # held once by its own reset_due
+        elif (
+            self.printer.quickstop_on_abort
+            and self.transport is not None
+            and self.quickstopped is not stream
+        ):
+            self.quickstopped = stream
             self.protocol.send_emergency("M410", self.clock())
 
     # -- stream host events -----------------------------------------------------
@@ -338,8 +353,8 @@ class Reactions:
         self.note(f"{text}: {stream.message}" if stream.message else text)
         if state == Job.State.FAILED:
             self.last_stream_error = stream.message
-        if state in (Job.State.FAILED, Job.State.ABORTED) and not upload:
-            self.stop_motion_after_error()  # a copy to the card moved nothing
+        if state in (Job.State.FAILED, Job.State.ABORTED):
+            self.stop_motion_after_error(stream)
         if state == Job.State.COMPLETED and not upload:
             self.host.run_script("end")
         self.hold_or_run(partial(self._finish, stream, state))

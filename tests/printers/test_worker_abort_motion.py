@@ -75,6 +75,30 @@ def test_by_default_an_abort_sends_no_quickstop(sim_factory, make_printer, make_
     assert AFTER not in ran  # the planned moves are still running out
 
 
+def test_a_firmware_error_mid_job_quickstops_once(sim_factory, make_printer, make_job):
+    """The error stops the stream at once and its end asks again: one M410, or a
+    second could cut the abort script's moves short."""
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "1")
+    printer = make_printer(port=str(sim.link), baud=250000, quickstop_on_abort=True)
+    job = make_job(printer, SLOW_MOVES)
+    worker = start_worker(printer)
+    try:
+        wait_for(
+            lambda: len(job_lines(sim)) >= 16, 30, "the planner full", step=worker.tick
+        )
+        assert sim.control("say Error:Probing failed") == "ok"
+        wait_for(lambda: job_state(job).state == "failed", 10, "the failure",
+                 step=worker.tick)  # fmt: skip
+        wait_for(lambda: "M410" in sim.executed(), 10, "the quickstop",
+                 step=worker.tick)  # fmt: skip
+        for _ in range(50):  # turns enough for a second one to have gone out
+            worker.tick()
+    finally:
+        worker.stop()
+    assert sim.executed().count("M410") == 1
+    assert "Probing failed" in job_state(job).message
+
+
 @pytest.mark.parametrize("firmware", ["grbl", "reprap", "repetier"])
 def test_the_quickstop_is_refused_for_firmware_other_than_marlin(firmware):
     printer = Printer(
