@@ -28,8 +28,8 @@ FINISHED_MOST = 500
 
 
 def printer_jobs(printer: Printer, *, finished: int = FINISHED_SHOWN) -> list[Job]:
-    """The printer's open jobs in queue order, then its *finished* newest finished
-    ones (by when they ended, newest first)."""
+    """The printer's open jobs in queue order, then its *finished* (0 to
+    FINISHED_MOST, as the API checks) newest finished ones, newest end first."""
     jobs = (
         Job.objects.filter(printer=printer)
         .select_related("printer", "analysis")
@@ -38,4 +38,4 @@ def printer_jobs(printer: Printer, *, finished: int = FINISHED_SHOWN) -> list[Jo
     open_jobs = jobs.exclude(state__in=FINISHED_STATES).order_by("position", "id")
     newest = F("finished_at").desc(nulls_last=True)
     done = jobs.filter(state__in=FINISHED_STATES).order_by(newest, "-id")
-    return [*open_jobs, *done[: max(0, min(finished, FINISHED_MOST))]]
+    return [*open_jobs, *done[:finished]]

@@ -35,11 +35,13 @@ __all__ = [
     "reads_keys",
 ]
 
+Privileges = dict[str, dict[str, tuple[str, ...]]]
+
 #: Per table, per privilege: the columns it covers (empty: the whole table).
 #: printers/worker, printers/heartbeat.py, printers/fetcher.py and jobs/history.py
 #: are what reads and writes them.
 # fmt: off
-HOST_PRIVILEGES: dict[str, dict[str, tuple[str, ...]]] = {
+HOST_PRIVILEGES: Privileges = {
     "printers_printer": {
         "SELECT": (),
         "UPDATE": (
@@ -90,6 +92,11 @@ HOST_PRIVILEGES: dict[str, dict[str, tuple[str, ...]]] = {
     "auth_user": {"SELECT": ("id", "username")},  # the history's "who"
 }
 # fmt: on
+#: What checking an API key reads (printhost/access.py): not a worker host's.
+KEY_CHECK: Privileges = {
+    table: {"SELECT": ()}
+    for table in ("printhost_apikey", "auth_user", "printhost_printerrole")
+}
 
 _ROLE = re.compile(r"[a-z_][a-z0-9_]{0,62}")
 
@@ -119,13 +126,15 @@ def grant_statements(role: str) -> list[str]:
     return statements
 
 
-def missing_privileges(connection: BaseDatabaseWrapper) -> list[str]:
-    """The `HOST_PRIVILEGES` the connection's role lacks, as GRANT fragments
+def missing_privileges(
+    connection: BaseDatabaseWrapper, wanted: Privileges = HOST_PRIVILEGES
+) -> list[str]:
+    """The privileges of *wanted* the connection's role lacks, as GRANT fragments
     ("UPDATE (state) ON jobs_job"); none off PostgreSQL (SQLite has no roles)."""
     if connection.vendor != "postgresql":
         return []
     checks: list[tuple[str, str, str]] = []
-    for table, privileges in HOST_PRIVILEGES.items():
+    for table, privileges in wanted.items():
         for privilege, columns in privileges.items():
             checks.extend((table, privilege, column) for column in columns or ("",))
     query = " UNION ALL ".join(
@@ -154,12 +163,4 @@ def missing_privileges(connection: BaseDatabaseWrapper) -> list[str]:
 def reads_keys(connection: BaseDatabaseWrapper) -> bool:
     """The connection's role may check an API key (its key, user and roles): a
     role granted only HOST_PRIVILEGES may not, so its metrics need the token."""
-    if connection.vendor != "postgresql":
-        return True
-    with connection.cursor() as cursor:
-        cursor.execute(
-            "SELECT has_table_privilege('printhost_apikey', 'SELECT') "
-            "AND has_table_privilege('auth_user', 'SELECT') "
-            "AND has_table_privilege('printhost_printerrole', 'SELECT')"
-        )
-        return bool(cursor.fetchone()[0])
+    return not missing_privileges(connection, KEY_CHECK)

@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 #: Response lines rendered with the printer page; the websocket sends the rest.
 TERMINAL_LINES = 200
 #: Finished jobs listed in a printer's queue panel (newest first after the queue);
-#: printer.js asks the job list for as many when it reloads the panel.
-FINISHED_SHOWN = 20
+#: printer.js asks the job list for as many (`data-finished`) when it reloads it.
+PANEL_FINISHED = 20
 
 
 def clock(seconds: float | None) -> str:
@@ -189,11 +189,12 @@ def printer_page(request: HttpRequest, slug: str) -> HttpResponse:
     )
     lines.reverse()
     newest = ResponseLine.objects.filter(printer=printer).aggregate(m=Max("seq"))["m"]
-    jobs = printer_jobs(printer, finished=FINISHED_SHOWN)
+    jobs = printer_jobs(printer, finished=PANEL_FINISHED)
     context = card(printer, caller) | {
         "lines": lines,
         "last_id": newest or 0,
         "jobs": [j.as_dict() for j in jobs],
+        "finished_shown": PANEL_FINISHED,
         "grbl": printer.is_grbl,
         "steps": ["0.1", "1", "10", "100"],
     }

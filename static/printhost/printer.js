@@ -193,17 +193,11 @@ function renderQueue() {
   list.replaceChildren(...rows);
 }
 
-function ordered(all) {
-  const rank = (j) => (FINISHED.includes(j.state) ? 1 : 0);
-  const live = all.filter((j) => !rank(j)).sort((a, b) => a.position - b.position || a.id - b.id);
-  const done = all.filter(rank); // the server's order: newest finished first
-  return [...live, ...done];
-}
-
 async function reloadQueue() {
-  const data = await api("GET", `/printer/job/${base}?a=list&finished=20`);
+  // Open jobs in queue order, then the newest finished: as many as the page shows.
+  const data = await api("GET", `/printer/job/${base}?a=list&finished=${list.dataset.finished}`);
   if (data) {
-    jobs = ordered(data);
+    jobs = data;
     renderQueue();
   }
 }
