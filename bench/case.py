@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -147,17 +148,23 @@ def measure(case: dict, sim: object, data_dir: Path, text: str) -> dict:
         stream = worker.host.current_stream
         if started is None and stream is not None and stream.sent:
             started, cpu0, sent[0] = time.perf_counter(), time.process_time(), 0
+            split0 = cpu_split()
             deadline = started + case["max_seconds"]
             turns = 0
         if started is not None and (stream is None or time.perf_counter() > deadline):
             break
     seconds = time.perf_counter() - started
     cpu = time.process_time() - cpu0
+    user, system = (
+        after - before for after, before in zip(cpu_split(), split0, strict=True)
+    )
     acked = (
         stream.acked if stream is not None else Job.objects.get(pk=job.pk).lines_acked
     )
     worker.stop()
-    return report(case, acked, sent[0], seconds, cpu, wakes=turns)
+    return report(
+        case, acked, sent[0], seconds, cpu, wakes=turns, user=user, system=system
+    )
 
 
 def measure_reference(case: dict, sim: object, data_dir: Path, text: str) -> dict:
@@ -171,7 +178,7 @@ def measure_reference(case: dict, sim: object, data_dir: Path, text: str) -> dic
     )  # fmt: skip
     return report(
         case, done["lines"], done["bytes"], done["seconds"], done["cpu"],
-        wakes=done["wakes"],
+        wakes=done["wakes"], user=done["user"], system=done["system"],
     )  # fmt: skip
 
 
@@ -190,9 +197,18 @@ def _count_writes(worker: object) -> list[int]:
     return count
 
 
+def cpu_split() -> tuple[float, float]:
+    """This process's CPU seconds so far, in user space and in the kernel."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime, usage.ru_stime
+
+
 def report(case: dict, lines: int, sent: int, seconds: float, cpu: float, *,
-           wakes: int) -> dict:  # fmt: skip
-    """One case's figures; *wakes*: turns of the host's loop (each one wake-up)."""
+           wakes: int, user: float | None = None,
+           system: float | None = None) -> dict:  # fmt: skip
+    """One case's figures; *wakes*: turns of the host's loop (each one wake-up);
+    *user* and *system*: the CPU split between user space and the kernel (the
+    kernel's share is the system calls, the rest is the host's own code)."""
     rate = sent / seconds if seconds else 0.0
     link = case["baud"] / 10 if case["baud"] else 0.0
     return {
@@ -205,6 +221,11 @@ def report(case: dict, lines: int, sent: int, seconds: float, cpu: float, *,
         "cpu_s_per_1k_lines": round(cpu / lines * 1000, 4) if lines else None,
         "mean_line_bytes": round(sent / lines, 1) if lines else None,
         "wakes_per_line": round(wakes / lines, 3) if lines else None,
+        **{
+            f"cpu_{name}_per_1k_lines": round(value / lines * 1000, 4)
+            for name, value in (("user", user), ("system", system))
+            if value is not None and lines
+        },
     }
 
 

@@ -38,6 +38,7 @@ def stream(link: Path, commands: list[str], *, firmware: str, mode: str, baud: i
            max_seconds: float) -> dict[str, Any]:  # fmt: skip
     """Stream *commands* until done or *max_seconds*: lines acked, seconds, CPU
     seconds, wake-ups and bytes written."""
+    from bench.case import cpu_split
     from printers.protocol.checksum import checksum
     from printers.transport import SerialTransport
 
@@ -53,7 +54,7 @@ def stream(link: Path, commands: list[str], *, firmware: str, mode: str, baud: i
     number = 1
     busy_until = 0.0
     rest = b""
-    started, cpu0 = time.perf_counter(), time.process_time()
+    started, cpu0, split0 = time.perf_counter(), time.process_time(), cpu_split()
     deadline = started + max_seconds
     try:
         while acked < len(commands) and time.perf_counter() < deadline:
@@ -96,10 +97,15 @@ def stream(link: Path, commands: list[str], *, firmware: str, mode: str, baud: i
                 written += len(data)
     finally:
         port.close()
+    user, system = (
+        after - before for after, before in zip(cpu_split(), split0, strict=True)
+    )
     return {
         "lines": acked,
         "seconds": time.perf_counter() - started,
         "cpu": time.process_time() - cpu0,
+        "user": user,
+        "system": system,
         "wakes": wakes,
         "bytes": written,
     }

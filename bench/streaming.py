@@ -189,9 +189,19 @@ def reference_lines(results: list[dict]) -> list[str]:
             f"INFO {mine['name']}: cpu/1k {mine['cpu_s_per_1k_lines']:.3f}, "
             f"{ratio:.1f} x the reference host's {r['cpu_s_per_1k_lines']:.3f} "
             f"(least of {_runs(mine)} against {_runs(r)}; wake-ups a line "
-            f"{_wakes(mine)} against {_wakes(r)})"
+            f"{_wakes(mine)} against {_wakes(r)}; user space + kernel "
+            f"{_split(mine)} against {_split(r)})"
         )
     return lines
+
+
+def _split(result: dict) -> str:
+    """The run's CPU a line split between the host's own code and its system calls."""
+    user = result.get("cpu_user_per_1k_lines")
+    system = result.get("cpu_system_per_1k_lines")
+    if user is None or system is None:
+        return "?"
+    return f"{user:.3f} + {system:.3f}"
 
 
 def _wakes(result: dict) -> str:
