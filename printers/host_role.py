@@ -14,9 +14,15 @@ privileges (run it as the database's owner after each `migrate`); `runhost
 --worker-host` checks them before it starts a worker (`missing_privileges`), so a
 role short of one is refused with the GRANT to run, not found out mid-print.
 
-What such a role still can do: change the state and progress of any printer's jobs
-and commands and the leases of any printer (the database cannot tell one host's
-rows from another's), and start a stored file on a printer through `[ESP700]`.
+The grants name the worker hosts the role serves, and row-level security keeps its
+writes to their rows (`CONFINED`): its own printers' leases, state, jobs, commands,
+response log, temperatures and history, its own heartbeat. A shelf computer taken
+over cannot start, stop or re-queue a job on another host's printer, answer that
+printer's commands or take its lease. What it still can do: read the rows of every
+printer and job in the columns granted, and start a stored file on one of its own
+printers through `[ESP700]`. The tables' owner (the control plane's role) is not
+subject to the policies; `confinement_problem` refuses a host role that is not
+confined to the host it runs as.
 """
 
 from __future__ import annotations
@@ -24,12 +30,16 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING
 
+from django.db import transaction
+
 if TYPE_CHECKING:
     from django.db.backends.base.base import BaseDatabaseWrapper
 
 __all__ = [
+    "CONFINED",
     "HOST_PRIVILEGES",
     "BadRoleName",
+    "confinement_problem",
     "grant_statements",
     "missing_privileges",
     "reads_keys",
@@ -98,21 +108,48 @@ KEY_CHECK: Privileges = {
     for table in ("printhost_apikey", "auth_user", "printhost_printerrole")
 }
 
-_ROLE = re.compile(r"[a-z_][a-z0-9_]{0,62}")
+#: The rows a host role may write, table by table, as SQL over `{hosts}` (the
+#: quoted names of the hosts it serves); it reads every row its columns allow.
+_OWN_HOSTS = "SELECT id FROM printers_workerhost WHERE name IN ({hosts})"
+_OWN_PRINTERS = (
+    f"SELECT id FROM printers_printer WHERE worker_host_id IN ({_OWN_HOSTS})"
+)
+CONFINED: dict[str, str] = {
+    "printers_printer": f"worker_host_id IN ({_OWN_HOSTS})",
+    "printers_workerhost": "name IN ({hosts})",
+    **{
+        table: f"printer_id IN ({_OWN_PRINTERS})"
+        for table in (
+            "printers_queuedcommand", "printers_responseline",
+            "printers_temperaturesample", "jobs_job", "jobs_historyentry",
+        )
+    },
+}  # fmt: skip
+#: Room in a role's name for its policies' names (`ph_select_<role>`, 63 at most).
+_ROLE = re.compile(r"[a-z_][a-z0-9_]{0,52}")
+#: A worker host's name (printers/hosts.py): nothing to quote in an SQL string.
+_HOST = re.compile(r"[a-z0-9][a-z0-9_-]{0,49}")
+_COMMANDS = ("SELECT", "INSERT", "UPDATE", "DELETE")
 
 
 class BadRoleName(ValueError):
-    """Not a plain PostgreSQL role name."""
+    """A role or worker host name the grants cannot take as it is."""
 
 
-def grant_statements(role: str) -> list[str]:
+def grant_statements(role: str, hosts: list[str]) -> list[str]:
     """SQL that takes every privilege *role* has on the schema's tables and gives
-    it `HOST_PRIVILEGES` (for the database's owner to run, after each migrate)."""
+    it `HOST_PRIVILEGES`, its writes confined to the rows of *hosts* (for the
+    database's owner to run, after each migrate)."""
     if not _ROLE.fullmatch(role):
         raise BadRoleName(
             f"{role!r} is not a plain role name: lower-case letters, digits and _, "
-            "not starting with a digit, at most 63"
+            "not starting with a digit, at most 53"
         )
+    if not hosts:
+        raise BadRoleName(f"name the worker hosts role {role} serves")
+    for host in hosts:
+        if not _HOST.fullmatch(host):
+            raise BadRoleName(f"{host!r} is not a worker host's name")
     to = f'"{role}"'
     statements = [
         f"REVOKE ALL ON ALL TABLES IN SCHEMA public FROM {to};",
@@ -123,6 +160,26 @@ def grant_statements(role: str) -> list[str]:
         for privilege, columns in privileges.items():
             what = f"{privilege} ({', '.join(columns)})" if columns else privilege
             statements.append(f"GRANT {what} ON {table} TO {to};")
+    names = ", ".join(f"'{host}'" for host in sorted(set(hosts)))
+    for table, rows in CONFINED.items():
+        own = rows.format(hosts=names)
+        statements.append(f"ALTER TABLE {table} ENABLE ROW LEVEL SECURITY;")
+        for command in _COMMANDS:
+            policy = f'"ph_{command.lower()}_{role}"'
+            statements.append(f"DROP POLICY IF EXISTS {policy} ON {table};")
+            if command == "SELECT":
+                rule = "USING (true)"
+            elif command not in HOST_PRIVILEGES[table]:
+                continue
+            elif command == "INSERT":
+                rule = f"WITH CHECK ({own})"
+            elif command == "DELETE":
+                rule = f"USING ({own})"
+            else:
+                rule = f"USING ({own}) WITH CHECK ({own})"
+            statements.append(
+                f"CREATE POLICY {policy} ON {table} FOR {command} TO {to} {rule};"
+            )
     return statements
 
 
@@ -164,3 +221,57 @@ def reads_keys(connection: BaseDatabaseWrapper) -> bool:
     """The connection's role may check an API key (its key, user and roles): a
     role granted only HOST_PRIVILEGES may not, so its metrics need the token."""
     return not missing_privileges(connection, KEY_CHECK)
+
+
+def confinement_problem(connection: BaseDatabaseWrapper, host: str) -> str | None:
+    """Why the connection's role may not run as worker host *host*: its writes
+    reach other hosts' rows (grants without policies, or from before them), or
+    its policies name other hosts. None when they are *host*'s rows, off
+    PostgreSQL, and for the tables' owner or a superuser (a farm on one role)."""
+    if connection.vendor != "postgresql":
+        return None
+    tables = list(CONFINED)
+    with connection.cursor() as cursor:
+        cursor.execute(
+            "SELECT current_user, rolsuper OR rolbypassrls OR bool_and("
+            "pg_has_role(current_user, tableowner, 'USAGE')) "
+            "FROM pg_roles, pg_tables WHERE rolname = current_user "
+            "AND schemaname = current_schema() AND tablename = ANY(%s) "
+            "GROUP BY rolsuper, rolbypassrls",
+            [tables],
+        )
+        row = cursor.fetchone()
+        if row is None or row[1]:
+            return None
+        role = row[0]
+        cursor.execute(
+            "SELECT t FROM unnest(%s::text[]) AS t WHERE NOT row_security_active(t)",
+            [tables],
+        )
+        unconfined = [table for (table,) in cursor.fetchall()]
+    again = (
+        "As the database's owner, run the SQL of "
+        f"`manage.py worker_host grants {role} {host}`"
+    )
+    if unconfined:
+        return (
+            f"the database role {role!r} may write other hosts' rows of "
+            f"{', '.join(unconfined)}. {again}"
+        )
+    with transaction.atomic(using=connection.alias):
+        with connection.cursor() as cursor:
+            # Its own heartbeat row is the one row of printers_workerhost it may
+            # write: an update that changes nothing, undone, asks the policy.
+            cursor.execute(
+                "UPDATE printers_workerhost SET seen_at = seen_at WHERE name = %s",
+                [host],
+            )
+            writable = cursor.rowcount
+            cursor.execute("SELECT 1 FROM printers_workerhost WHERE name = %s", [host])
+            exists = cursor.fetchone() is not None
+        transaction.set_rollback(True, using=connection.alias)
+    if exists and not writable:
+        return (
+            f"the database role {role!r} serves other worker hosts than {host}. {again}"
+        )
+    return None

@@ -3,10 +3,12 @@ the host on its own role granted only what `worker_host grants` prints: the host
 runs its printer, fetches the job's file over HTTP and prints it exactly, with its
 log, temperatures, heartbeat and history; the control plane drives no printer. The
 role can read no password or key, change no printer's settings and queue no
-command; runhost refuses a role short of a grant before it drives anything."""
+command, and writes no row of another host's printers; runhost refuses a role
+short of a grant, or not kept to its own host's rows, before it drives anything."""
 
 from __future__ import annotations
 
+import json
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +21,7 @@ from printers.sample_gcode import commands_of, segments
 from tests.conftest import HOST_COMMANDS, wait_for
 from tests.hosts import Host, free_port, import_or_skip, postgres_url
 from tests.ops.conftest import samples
+from tests.printers.test_response_log_postgres import AWKWARD
 
 pytestmark = [pytest.mark.slow, pytest.mark.services]
 
@@ -55,10 +58,10 @@ def farm(tmp_path: Path) -> Iterator[tuple[Host, Host, str]]:
             connection.execute(f'DROP ROLE "{role}"')
 
 
-def _grant(control: Host, role: str) -> None:
+def _grant(control: Host, role: str, host: str = "shelf-1") -> None:
     import psycopg
 
-    sql = control.manage("worker_host", "grants", role).stdout
+    sql = control.manage("worker_host", "grants", role, host).stdout
     with psycopg.connect(control.database_url, autocommit=True) as connection:
         for statement in sql.splitlines():
             connection.execute(statement)
@@ -80,6 +83,7 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
     source = tmp_path / "part.gcode"
     source.write_text(text)
     control.manage("add_job", "p1", str(source))
+    _another_host_with_work(control, tmp_path)
     _grant(control, role)
     shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
     port = str(free_port())
@@ -93,10 +97,13 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
     with control.running("--no-workers"):
         shelf.env["PRINTHOST_CONTROL_URL"] = control.url
         with shelf.running("--worker-host", "shelf-1", *metrics, web=False) as runhost:
-            state = lambda: control.query("SELECT state, message FROM jobs_job")[0]
+            state = lambda: control.query(
+                f"SELECT state, message FROM jobs_job WHERE {P1}"
+            )[0]
             wait_for(lambda: state()[0] == "completed", 90, "the job to complete")
             host = control.query(
-                "SELECT instance, printers, version FROM printers_workerhost"
+                "SELECT instance, printers, version FROM printers_workerhost "
+                "WHERE name = 'shelf-1'"
             )[0]
             assert str(runhost.pid) in host[0] and host[2]
             assert '"p1"' in str(host[1]).replace("'", '"')
@@ -114,13 +121,14 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
             ]  # fmt: skip
             assert {s["printer"] for s in states} == {"p1"}
         assert "lacks" not in shelf.log_tail(200)
-        assert control.query("SELECT instance FROM printers_workerhost")[0][0] == ""
+        shelf_1 = "SELECT instance FROM printers_workerhost WHERE name = 'shelf-1'"
+        assert control.query(shelf_1) == [("",)]
 
     ran = [
         c for c in record.read_text().splitlines() if not c.startswith(HOST_COMMANDS)
     ]
     assert ran == commands_of(text)
-    sha = control.query("SELECT sha256 FROM jobs_job")[0][0]
+    sha = control.query(f"SELECT sha256 FROM jobs_job WHERE {P1}")[0][0]
     assert (shelf.folder / "cache" / "jobs" / sha).read_text() == text
     assert not (shelf.folder / "jobs").exists()  # no job storage on the host
     assert "worker:p1" not in control.log_tail(200)  # the control plane drove none
@@ -139,10 +147,68 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
         "SELECT id, 'M104 S300', 'pending', 'x' FROM printers_printer",
         "INSERT INTO printhost_printerrole (user_id, role) VALUES (1, 40)",
     )
+    control.query(  # p1's own command, for the updates' counterpart below
+        "INSERT INTO printers_queuedcommand (printer_id, kind, text, origin, state, "
+        "reply, created_at) SELECT id, 'command', 'M105', '', 'pending', '', now() "
+        "FROM printers_printer WHERE slug = 'p1' RETURNING id"
+    )
     with psycopg.connect(shelf.env["DATABASE_URL"], autocommit=True) as connection:
-        for sql in refused:
+        for sql in refused + FORGED_FOR_P2:
             with pytest.raises(psycopg.errors.InsufficientPrivilege):
                 connection.execute(sql)
+        # Another host's rows are out of its reach: its updates find none of them.
+        for sql in UPDATES_OF_P2:
+            assert connection.execute(sql).rowcount == 0, sql
+            assert (
+                connection.execute(
+                    sql.replace("p2", "p1").replace("shelf-2", "shelf-1")
+                ).rowcount
+                == 1
+            ), sql
+    assert control.query(f"SELECT state FROM jobs_job WHERE {P2}") == [("queued",)]
+    assert control.query(f"SELECT state FROM printers_queuedcommand WHERE {P2}") == [
+        ("pending",)
+    ]
+    assert control.query(
+        "SELECT lease_owner, state FROM printers_printer WHERE slug = 'p2'"
+    ) == [("", "offline")]
+
+
+P1 = "printer_id = (SELECT id FROM printers_printer WHERE slug = 'p1')"
+P2 = "printer_id = (SELECT id FROM printers_printer WHERE slug = 'p2')"
+#: What a taken-over shelf-1 would do to shelf-2's printer: each finds no row.
+UPDATES_OF_P2 = (
+    f"UPDATE jobs_job SET state = 'cancelled' WHERE {P2}",
+    f"UPDATE printers_queuedcommand SET state = 'done' WHERE {P2}",
+    "UPDATE printers_printer SET lease_owner = 'x', state = 'ready' WHERE slug = 'p2'",
+    "UPDATE printers_workerhost SET hostname = 'x' WHERE name = 'shelf-2'",
+)
+#: ... and rows it would write for it: each breaks the row-level policy.
+FORGED_FOR_P2 = (
+    "INSERT INTO printers_responseline (printer_id, seq, time, text, kind) "
+    "SELECT id, 999999, now(), 'forged', 0 FROM printers_printer WHERE slug = 'p2'",
+    "INSERT INTO printers_temperaturesample (printer_id, time, temperatures) "
+    "SELECT id, now(), '{}' FROM printers_printer WHERE slug = 'p2'",
+    # A copy of p1's finished job, queued on p2: it would start printing there.
+    "INSERT INTO jobs_job SELECT (jsonb_populate_record(NULL::jobs_job, to_jsonb(j) "
+    "|| jsonb_build_object('id', 900000, 'printer_id', p.id, 'state', 'queued'))).* "
+    f"FROM jobs_job j, printers_printer p WHERE j.{P1} AND p.slug = 'p2'",
+)
+
+
+def _another_host_with_work(control: Host, tmp_path: Path) -> None:
+    """Worker host shelf-2 with printer p2, a job queued on it and a command."""
+    control.manage("worker_host", "add", "shelf-2")
+    other = tmp_path / "other.gcode"
+    other.write_text("G28\n")
+    control.shell(
+        "from printers.models import Printer, QueuedCommand; "
+        "from printers.hosts import WorkerHost; "
+        "p = Printer.objects.create(name='P2', slug='p2', port='/dev/ttyUSB7', "
+        "worker_host=WorkerHost.objects.get(name='shelf-2')); "
+        "QueuedCommand.objects.create(printer=p, text='M105')"
+    )
+    control.manage("add_job", "p2", str(other))
 
 
 def _answers(scrape) -> bool:
@@ -171,11 +237,45 @@ def test_runhost_refuses_a_role_short_of_a_grant_and_names_it(farm):
     assert control.query("SELECT instance FROM printers_workerhost") == [("",)]
 
 
-def test_grants_refuse_a_role_name_that_is_not_plain(tmp_path):
+def test_grants_refuse_a_role_or_host_name_that_is_not_plain(tmp_path):
     host = Host(tmp_path)
-    result = host.manage("worker_host", "grants", 'x"; DROP TABLE', check=False)
+    result = host.manage("worker_host", "grants", 'x"; DROP TABLE', "shelf-1", check=False)  # fmt: skip
     assert result.returncode != 0
     assert "is not a plain role name" in result.stderr
+    result = host.manage("worker_host", "grants", "ph_host", "a') OR (true", check=False)  # fmt: skip
+    assert result.returncode != 0
+    assert "is not a worker host's name" in result.stderr
+
+
+def test_runhost_refuses_a_role_not_kept_to_its_own_hosts_rows(farm):
+    import psycopg
+
+    control, shelf, role = farm
+    shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
+    unknown = control.manage("worker_host", "grants", role, "shelf-9", check=False)
+    assert unknown.returncode != 0
+    assert "no worker host named shelf-9 (known: shelf-1)" in unknown.stderr
+    start = ("runhost", "--no-web", "--worker-host", "shelf-1")
+
+    control.manage("worker_host", "add", "shelf-2")
+    _grant(control, role, "shelf-2")
+    result = shelf.manage(*start, check=False)
+    assert result.returncode != 0
+    assert f"the database role '{role}' serves other worker hosts than shelf-1" in (
+        result.stderr
+    )
+    assert f"worker_host grants {role} shelf-1" in result.stderr
+
+    # Grants from before the policies: every privilege, no row kept from it.
+    _grant(control, role)
+    with psycopg.connect(control.database_url, autocommit=True) as connection:
+        connection.execute("ALTER TABLE jobs_job DISABLE ROW LEVEL SECURITY")
+    result = shelf.manage(*start, check=False)
+    assert result.returncode != 0
+    assert f"the database role '{role}' may write other hosts' rows of jobs_job" in (
+        result.stderr
+    )
+    assert control.query("SELECT instance FROM printers_workerhost") == [("",), ("",)]
 
 
 def test_runhost_on_a_database_older_than_its_code_says_migrate_first(farm):
@@ -190,3 +290,40 @@ def test_runhost_on_a_database_older_than_its_code_says_migrate_first(farm):
     assert result.returncode != 0
     assert "link_stats" in result.stderr
     assert "run manage.py migrate on the control plane" in result.stderr
+
+
+#: A worker's log on the host's role: its printer's lease taken, a batch stored.
+LOG_AS_HOST = """
+import json
+from printers.models import Printer
+from printers.protocol.events import LineKind
+from printers.worker.lease import Lease
+from printers.worker.responselog import ResponseLog
+printer = Printer.objects.get(slug="p1")
+lease = Lease(printer.pk, "a:1:x", 10, host="shelf-1")
+lease.take(now=0.0)
+log = ResponseLog(printer.pk, lease=lease)
+for text in json.loads({texts!r}):
+    log.add(text, LineKind.RESPONSE)
+log.flush()
+"""
+
+
+def test_the_response_log_goes_in_line_for_line_under_the_row_policies(farm):
+    control, shelf, role = farm
+    control.shell(
+        "from printers.models import Printer; from printers.hosts import WorkerHost; "
+        "Printer.objects.create(name='P1', slug='p1', port='/dev/ttyUSB0', "
+        "worker_host=WorkerHost.objects.get(name='shelf-1'))"
+    )
+    _grant(control, role)
+    shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
+
+    shelf.shell(LOG_AS_HOST.format(texts=json.dumps(AWKWARD)))
+
+    rows = control.query(
+        "SELECT seq, text, kind FROM printers_responseline ORDER BY seq"
+    )
+    assert rows == [(i + 1, text, 4) for i, text in enumerate(AWKWARD)]
+    times = control.query("SELECT DISTINCT time FROM printers_responseline")
+    assert len(times) == 1

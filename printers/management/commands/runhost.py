@@ -16,7 +16,7 @@ from django.core.management.base import BaseCommand, CommandError
 from django.db import ProgrammingError, connection
 
 from printers.heartbeat import HostRefused, HostRegistration
-from printers.host_role import missing_privileges
+from printers.host_role import confinement_problem, missing_privileges
 from printers.supervisor import Supervisor
 from printhost.metrics_access import bind_refusal, key_check_refusal
 from printhost.startup import secret_key_refusal
@@ -119,12 +119,15 @@ class Command(BaseCommand):
                 "manage.py migrate on the control plane before upgrading its hosts"
             ) from None
         if missing:
+            role = connection.settings_dict["USER"]
             raise CommandError(
-                f"the database role {connection.settings_dict['USER']!r} lacks what a "
-                f"worker host needs: {'; '.join(missing)}. As the database's owner, "
-                "run the SQL of `manage.py worker_host grants ROLE` (again after "
-                "each migrate)"
+                f"the database role {role!r} lacks what a worker host needs: "
+                f"{'; '.join(missing)}. As the database's owner, run the SQL of "
+                f"`manage.py worker_host grants {role} {name}` (again after each "
+                "migrate)"
             )
+        if problem := confinement_problem(connection, name):
+            raise CommandError(problem)
         registration = HostRegistration(name)
         try:
             host = registration.claim()

@@ -1,5 +1,5 @@
 """`manage.py worker_host add|key|list|release|remove NAME`: the farm's worker hosts;
-`worker_host grants ROLE`: the SQL for their own database role."""
+`worker_host grants ROLE HOST...`: the SQL for their own database role."""
 
 from __future__ import annotations
 
@@ -43,9 +43,11 @@ class Command(BaseCommand):
         grants = actions.add_parser(
             "grants",
             help="print the SQL that gives a worker host's own database role what "
-            "it needs and no more (printers/host_role.py)",
+            "it needs and no more, its writes kept to the rows of the hosts named "
+            "(printers/host_role.py)",
         )
         grants.add_argument("role")
+        grants.add_argument("hosts", nargs="+", metavar="host")
 
     def handle(self, *args: Any, **options: Any) -> None:
         action = options["action"]
@@ -54,9 +56,15 @@ class Command(BaseCommand):
             return
         if action == "grants":
             try:
-                statements = grant_statements(options["role"])
+                statements = grant_statements(options["role"], options["hosts"])
             except BadRoleName as error:
                 raise CommandError(str(error)) from None
+            known = set(WorkerHost.objects.values_list("name", flat=True))
+            if unknown := sorted(set(options["hosts"]) - known):
+                raise CommandError(
+                    f"no worker host named {', '.join(unknown)} (known: "
+                    f"{', '.join(sorted(known)) or 'none'}): add it first"
+                )
             self.stdout.write("\n".join(statements))
             return
         name = options["name"]
