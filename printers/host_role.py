@@ -30,7 +30,7 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING
 
-from django.db import transaction
+from django.db import OperationalError, ProgrammingError, transaction
 
 if TYPE_CHECKING:
     from django.db.backends.base.base import BaseDatabaseWrapper
@@ -40,6 +40,7 @@ __all__ = [
     "HOST_PRIVILEGES",
     "BadRoleName",
     "confinement_problem",
+    "control_plane_problem",
     "grant_statements",
     "missing_privileges",
     "reads_keys",
@@ -275,3 +276,27 @@ def confinement_problem(connection: BaseDatabaseWrapper, host: str) -> str | Non
             f"the database role {role!r} serves other worker hosts than {host}. {again}"
         )
     return None
+
+
+def control_plane_problem(connection: BaseDatabaseWrapper) -> str | None:
+    """Why a control plane may not run on the connection's role: the worker hosts'
+    row policies apply to it (a role that does not own the tables), so it would see
+    none of the farm's printers and jobs. None when they do not, off PostgreSQL, and
+    while the database is away or not migrated yet (nothing to go by)."""
+    if connection.vendor != "postgresql":
+        return None
+    try:
+        with connection.cursor() as cursor:
+            cursor.execute(
+                "SELECT current_user, row_security_active('printers_printer')"
+            )
+            role, bound = cursor.fetchone()
+    except (OperationalError, ProgrammingError):
+        return None
+    if not bound:
+        return None
+    return (
+        f"the database role {role!r} is held to worker hosts' rows (row-level "
+        "security applies to it: it does not own the tables); the control plane "
+        "connects as the role that owns them (docs/deploy.md, section 2)"
+    )

@@ -277,6 +277,11 @@ def test_runhost_refuses_a_role_not_kept_to_its_own_hosts_rows(farm):
     )
     assert control.query("SELECT instance FROM printers_workerhost") == [("",), ("",)]
 
+    # A control plane on a role the policies hold would see no printer or job.
+    result = shelf.manage("runhost", "--no-workers", "--no-celery", check=False)
+    assert result.returncode != 0
+    assert f"the database role '{role}' is held to worker hosts' rows" in result.stderr
+
 
 def test_runhost_on_a_database_older_than_its_code_says_migrate_first(farm):
     import psycopg

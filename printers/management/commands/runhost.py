@@ -16,7 +16,11 @@ from django.core.management.base import BaseCommand, CommandError
 from django.db import ProgrammingError, connection
 
 from printers.heartbeat import HostRefused, HostRegistration
-from printers.host_role import confinement_problem, missing_privileges
+from printers.host_role import (
+    confinement_problem,
+    control_plane_problem,
+    missing_privileges,
+)
 from printers.supervisor import Supervisor
 from printhost.metrics_access import bind_refusal, key_check_refusal
 from printhost.startup import secret_key_refusal
@@ -70,6 +74,8 @@ class Command(BaseCommand):
         # Children (simulators: their --record check) see the same data directory.
         os.environ["PRINTHOST_DATA_DIR"] = str(settings.DATA_DIR)
         worker_host = self._worker_host(options)
+        if worker_host is None and (problem := control_plane_problem(connection)):
+            raise CommandError(problem)
         # Workers claim only printers of the host they run on (their lease says so).
         os.environ["PRINTHOST_WORKER_HOST"] = worker_host.name if worker_host else ""
         if not options["no_web"]:
