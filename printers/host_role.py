@@ -19,8 +19,8 @@ writes to their rows (`CONFINED`): its own printers' leases, state, jobs, comman
 response log, temperatures and history, its own heartbeat. A shelf computer taken
 over cannot start, stop or re-queue a job on another host's printer, answer that
 printer's commands or take its lease. What it still can do: read the rows of every
-printer and job in the columns granted, and start a stored file on one of its own
-printers through `[ESP700]`. The tables' owner (the control plane's role) is not
+printer and job in the columns granted. It adds no job with a stored file (the
+control plane would serve that file to it) and no file analysis. The tables' owner (the control plane's role) is not
 subject to the policies; `confinement_problem` refuses a host role that is not
 confined to the host it runs as.
 """
@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CONFINED",
+    "CONFINED_INSERTS",
     "HOST_PRIVILEGES",
     "BadRoleName",
     "confinement_problem",
@@ -83,10 +84,10 @@ HOST_PRIVILEGES: Privileges = {
     },
     "jobs_job": {
         "SELECT": (),
-        "INSERT": (),  # [ESP700]stream= and an SD upload's print
+        "INSERT": (),  # an SD upload's print (no stored file: CONFINED_INSERTS)
         "UPDATE": (
             "state", "message", "started_at", "finished_at", "progress_at",
-            "lines_sent", "lines_acked", "bytes_acked", "size_bytes", "analysis_id",
+            "lines_sent", "lines_acked", "bytes_acked", "size_bytes",
         ),
     },
     "jobs_historyentry": {
@@ -95,11 +96,7 @@ HOST_PRIVILEGES: Privileges = {
         "UPDATE": (),
         "DELETE": (),  # a run the control plane took for dead is forgotten
     },
-    "jobs_fileanalysis": {
-        "SELECT": (),
-        "INSERT": (),  # [ESP700]stream= asks for an analysis
-        "UPDATE": ("sent_at",),
-    },
+    "jobs_fileanalysis": {"SELECT": ()},  # a run's figures (jobs/history.py)
     "auth_user": {"SELECT": ("id", "username")},  # the history's "who"
 }
 # fmt: on
@@ -126,6 +123,9 @@ CONFINED: dict[str, str] = {
         )
     },
 }  # fmt: skip
+#: What else a host role's new rows must be: a job it adds names no stored file
+#: (the control plane serves a host any file its printers' jobs name).
+CONFINED_INSERTS = {"jobs_job": "file = ''"}
 #: Room in a role's name for its policies' names (`ph_select_<role>`, 63 at most).
 _ROLE = re.compile(r"[a-z_][a-z0-9_]{0,52}")
 #: A worker host's name (printers/hosts.py): nothing to quote in an SQL string.
@@ -152,7 +152,10 @@ def grant_statements(role: str, hosts: list[str]) -> list[str]:
         if not _HOST.fullmatch(host):
             raise BadRoleName(f"{host!r} is not a worker host's name")
     to = f'"{role}"'
+    # One transaction: statement by statement, the role would be without its
+    # grants or policies for a moment, and its hosts' running prints would fail.
     statements = [
+        "BEGIN;",
         f"REVOKE ALL ON ALL TABLES IN SCHEMA public FROM {to};",
         f"REVOKE ALL ON ALL SEQUENCES IN SCHEMA public FROM {to};",
         f"GRANT USAGE ON SCHEMA public TO {to};",
@@ -173,7 +176,8 @@ def grant_statements(role: str, hosts: list[str]) -> list[str]:
             elif command not in HOST_PRIVILEGES[table]:
                 continue
             elif command == "INSERT":
-                rule = f"WITH CHECK ({own})"
+                extra = CONFINED_INSERTS.get(table)
+                rule = f"WITH CHECK ({own}{f' AND {extra}' if extra else ''})"
             elif command == "DELETE":
                 rule = f"USING ({own})"
             else:
@@ -181,7 +185,7 @@ def grant_statements(role: str, hosts: list[str]) -> list[str]:
             statements.append(
                 f"CREATE POLICY {policy} ON {table} FOR {command} TO {to} {rule};"
             )
-    return statements
+    return [*statements, "COMMIT;"]
 
 
 def missing_privileges(

@@ -40,7 +40,10 @@ def number(value: object) -> float | None:
     bool)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an int of hundreds of digits
+        return None
     return value if math.isfinite(value) else None
 
 

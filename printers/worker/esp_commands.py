@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from django.conf import settings
+
 from jobs.gcode import BadGcode, iter_commands
 from printers.streaming import Line, Stream
 from printers.streaming.esp import (
@@ -55,6 +57,12 @@ class EspCommands:
         from jobs.services import check_stored_file, queue_stored_file, stored_file
 
         printer = self.worker.printer
+        if settings.PRINTHOST_WORKER_HOST:
+            raise EspError(
+                f"[ESP700] reads the printer's storage, which is on the control "
+                f"plane, not on worker host {settings.PRINTHOST_WORKER_HOST}: queue "
+                "the file there"
+            )
         from_file = within is not None and within.type.is_file
         depth = within.depth + 1 if from_file and within is not None else 0
         if from_file and request.type.is_stream:

@@ -31,7 +31,7 @@ from printhost.api.dialects import (
     truthy,
     upload_from_form,
 )
-from printhost.api.farm import is_farm, store_farm_request
+from printhost.api.farm import farm_caller, is_farm, store_farm_request
 from printhost.clients import run_action
 from printhost.models import Role
 
@@ -151,6 +151,7 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
 
 
 def _farm_upload(request: HttpRequest) -> HttpResponse:
+    farm_caller(request, Role.OPERATOR)  # before the body is read
     upload = request.FILES.get("file")
     if upload is None:
         raise HttpError(400, "no file part: send the G-code as multipart field 'file'")

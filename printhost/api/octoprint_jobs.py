@@ -29,7 +29,7 @@ from printhost.api.dialects import (
     truthy,
     upload_from_form,
 )
-from printhost.api.farm import is_farm, store_farm_request
+from printhost.api.farm import farm_caller, is_farm, store_farm_request
 from printhost.api.octoprint import no_content, state_and_flags
 from printhost.audit import record
 from printhost.clients import run_action
@@ -194,6 +194,7 @@ def octoprint_upload(request: HttpRequest, slug: str | None = None) -> JsonRespo
 
 
 def _farm_upload(request: HttpRequest) -> JsonResponse:
+    farm_caller(request, Role.OPERATOR)  # before the body is read
     upload = request.FILES.get("file")
     if upload is None:
         raise HttpError(400, "no file part: send the G-code as multipart field 'file'")

@@ -193,6 +193,8 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
     """
     # `a` and `id` come from the query for an append: its body is the chunk.
     action = request.GET.get("a") or ""
+    if farm.is_farm(slug) and request.content_type == "multipart/form-data":
+        farm.farm_caller(request, Role.OPERATOR)  # an upload: before its body is read
     params = (
         {k: request.GET.get(k, "") for k in request.GET}
         if action == "append"

@@ -158,6 +158,14 @@ def test_a_broken_file_is_refused_like_any_upload(
     assert farm_files(storage) == []
 
 
+#: The three dialects' farm uploads.
+FARM_UPLOADS = (
+    "/printer/job/farm?a=upload",
+    "/p/farm/api/files/local",
+    "/p/farm/server/files/upload",
+)
+
+
 def test_only_an_operator_of_every_printer_with_an_unbound_key_may_queue(
     make_printer: Callable[..., Printer], key: Callable[..., str]
 ) -> None:
@@ -171,6 +179,13 @@ def test_only_an_operator_of_every_printer_with_an_unbound_key_may_queue(
         status, body = send("post", "/printer/job/farm?a=upload", raw, file=PART)
         assert status == 403, who
         assert "every printer" in body["error"] or "bound" in body["error"], body
+        # Refused before the body is read: a broken one is not even looked at.
+        for path in FARM_UPLOADS:
+            response = Client().post(
+                path, data=b"--x\r\nnot a part", headers={"X-Api-Key": raw},
+                content_type="multipart/form-data; boundary=x",
+            )  # fmt: skip
+            assert response.status_code == 403, (who, path, response.content)
     assert not FarmJob.objects.exists()
     status, _ = send("get", "/printer/farm", key("viewer"))
     assert status == 200

@@ -71,6 +71,7 @@ def test_the_farm_page_shows_the_queue_and_printers_by_host_and_material(
         {"loadavg": ["high"], "cpus": "four"},
         {"loadavg": 0.5, "cpus": -1},
         {"loadavg": [[1]], "cpus": True},
+        {"loadavg": [10**400], "cpus": 10**400},  # past any float
         ["not", "a", "dict"],
     ],
 )

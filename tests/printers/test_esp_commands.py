@@ -106,6 +106,23 @@ def test_esp700_script_runs_a_stored_file_through_the_script_queue(worker):
 
 
 @pytestmark_db
+def test_esp700_on_a_worker_host_says_the_files_are_on_the_control_plane(
+    worker, settings
+):
+    printer = worker.printer
+    (storage_dir(printer) / "part.gcode").write_text(segments(30))
+    settings.PRINTHOST_WORKER_HOST = "shelf-1"
+
+    for text in ("[ESP700]stream=/sd/part.gcode", "[ESP700]/fs/part.gcode"):
+        reply = reply_of(send_command(printer, text), worker)
+        assert reply.startswith(
+            "error: [ESP700] reads the printer's storage, which is on the control "
+            "plane, not on worker host shelf-1"
+        ), reply
+    assert not Job.objects.filter(printer=printer).exists()
+
+
+@pytestmark_db
 def test_esp701_controls_and_reports_the_running_stream(worker, make_job):
     printer = worker.printer
     text = segments(3000)

@@ -97,6 +97,8 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
     with control.running("--no-workers"):
         shelf.env["PRINTHOST_CONTROL_URL"] = control.url
         with shelf.running("--worker-host", "shelf-1", *metrics, web=False) as runhost:
+            # An upgrade's grants again while the host works (one transaction).
+            _grant(control, role)
             state = lambda: control.query(
                 f"SELECT state, message FROM jobs_job WHERE {P1}"
             )[0]
@@ -146,6 +148,7 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
         "INSERT INTO printers_queuedcommand (printer_id, text, state, origin) "
         "SELECT id, 'M104 S300', 'pending', 'x' FROM printers_printer",
         "INSERT INTO printhost_printerrole (user_id, role) VALUES (1, 40)",
+        "INSERT INTO jobs_fileanalysis (sha256, state) VALUES ('x', 'done')",
     )
     control.query(  # p1's own command, for the updates' counterpart below
         "INSERT INTO printers_queuedcommand (printer_id, kind, text, origin, state, "
@@ -153,7 +156,7 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
         "FROM printers_printer WHERE slug = 'p1' RETURNING id"
     )
     with psycopg.connect(shelf.env["DATABASE_URL"], autocommit=True) as connection:
-        for sql in refused + FORGED_FOR_P2:
+        for sql in refused + FORGED:
             with pytest.raises(psycopg.errors.InsufficientPrivilege):
                 connection.execute(sql)
         # Another host's rows are out of its reach: its updates find none of them.
@@ -165,6 +168,9 @@ def test_a_worker_host_prints_on_its_own_role_which_can_do_nothing_else(farm, tm
                 ).rowcount
                 == 1
             ), sql
+        # What it does add: an SD print on its own printer (no stored file).
+        sd_print = COPY_OF_P1_JOB.format(id=900002, extra=", 'file', ''", slug="p1")
+        assert connection.execute(sd_print).rowcount == 1
     assert control.query(f"SELECT state FROM jobs_job WHERE {P2}") == [("queued",)]
     assert control.query(f"SELECT state FROM printers_queuedcommand WHERE {P2}") == [
         ("pending",)
@@ -183,16 +189,23 @@ UPDATES_OF_P2 = (
     "UPDATE printers_printer SET lease_owner = 'x', state = 'ready' WHERE slug = 'p2'",
     "UPDATE printers_workerhost SET hostname = 'x' WHERE name = 'shelf-2'",
 )
+#: A copy of p1's finished job, queued on the printer named and changed by *extra*.
+COPY_OF_P1_JOB = (
+    "INSERT INTO jobs_job SELECT (jsonb_populate_record(NULL::jobs_job, to_jsonb(j) "
+    "|| jsonb_build_object('id', {id}, 'printer_id', p.id, 'state', 'queued'{extra}"
+    f"))).* FROM jobs_job j, printers_printer p WHERE j.{P1} AND p.slug = '{{slug}}'"
+)
 #: ... and rows it would write for it: each breaks the row-level policy.
-FORGED_FOR_P2 = (
+FORGED = (
     "INSERT INTO printers_responseline (printer_id, seq, time, text, kind) "
     "SELECT id, 999999, now(), 'forged', 0 FROM printers_printer WHERE slug = 'p2'",
     "INSERT INTO printers_temperaturesample (printer_id, time, temperatures) "
     "SELECT id, now(), '{}' FROM printers_printer WHERE slug = 'p2'",
-    # A copy of p1's finished job, queued on p2: it would start printing there.
-    "INSERT INTO jobs_job SELECT (jsonb_populate_record(NULL::jobs_job, to_jsonb(j) "
-    "|| jsonb_build_object('id', 900000, 'printer_id', p.id, 'state', 'queued'))).* "
-    f"FROM jobs_job j, printers_printer p WHERE j.{P1} AND p.slug = 'p2'",
+    # Queued on p2, it would start printing there.
+    COPY_OF_P1_JOB.format(id=900000, extra="", slug="p2"),
+    # Even on its own printer a job naming a stored file is refused: the control
+    # plane would serve the host that file, any printer's.
+    COPY_OF_P1_JOB.format(id=900001, extra="", slug="p1"),
 )
 
 
