@@ -10,6 +10,7 @@ once by `manage.py worker_host add NAME`).
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import secrets
 from datetime import datetime, timedelta
@@ -26,12 +27,43 @@ _NAME = RegexValidator(r"^[a-z0-9][a-z0-9_-]*$", "lowercase letters, digits, - a
 HEARTBEAT_STALE_SECONDS = 30.0
 #: A host whose clock is this far (s) from the database's is warned about.
 CLOCK_WARN_SECONDS = 2.0
+#: Digits of an integer a worker's JSON may hold as an int (more: a float).
+_INT_DIGITS = 40
 #: Characters of the key kept in clear to find its row (safe to show).
 KEY_PREFIX_CHARS = 10
 
 
 def key_digest(key: str) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
+
+
+class HostJSONDecoder(json.JSONDecoder):
+    """JSON a worker writes (a heartbeat's load, a printer's temperatures and link
+    figures): an integer of more digits than Python's int() reads (4,300) becomes a
+    float instead of failing every page that reads the row (`number` then takes
+    it for no value)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("parse_int", _host_int)
+        super().__init__(*args, **kwargs)
+
+
+def _host_int(digits: str) -> int | float:
+    return int(digits) if len(digits) <= _INT_DIGITS else float(digits)
+
+
+class HostJSONField(models.JSONField):
+    """A JSONField a worker writes, read with HostJSONDecoder. Migrations see a
+    plain JSONField: how a value is read is nothing to the database."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["decoder"] = HostJSONDecoder
+        super().__init__(*args, **kwargs)
+
+    def deconstruct(self) -> Any:
+        name, _, args, kwargs = super().deconstruct()
+        kwargs.pop("decoder", None)
+        return name, "django.db.models.JSONField", args, kwargs
 
 
 def number(value: object) -> float | None:
@@ -79,9 +111,9 @@ class WorkerHost(models.Model):
     seen_at = models.DateTimeField(null=True, blank=True)
     #: {"loadavg": [1, 5, 15], "cpus": n, "memory_mb": n, "disk_free_mb": n,
     #: "clock_offset_s": the database's clock minus the host's}
-    load = models.JSONField(default=dict, blank=True)
+    load = HostJSONField(default=dict, blank=True)
     #: {slug: {"pid": n, "running": bool, "restarts": n}} as the host runs them.
-    printers = models.JSONField(default=dict, blank=True)
+    printers = HostJSONField(default=dict, blank=True)
     #: Where the host serves its own /metrics (host:port), for scrape configs.
     metrics_address = models.CharField(max_length=255, blank=True)
 

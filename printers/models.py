@@ -6,7 +6,7 @@ from django.core.exceptions import ValidationError
 from django.core.validators import MaxValueValidator, MinValueValidator, RegexValidator
 from django.db import models
 
-from printers.hosts import WorkerHost
+from printers.hosts import HostJSONField, WorkerHost
 from printers.validators import (
     validate_build_volume,
     validate_motion_profile,
@@ -218,12 +218,12 @@ class Printer(models.Model):
     #: reconnect ends it: kept here so a worker started again keeps it too.
     emergency_halt = models.TextField(blank=True, editable=False)
     firmware_name = models.CharField(max_length=255, blank=True)
-    capabilities = models.JSONField(default=dict, blank=True)
-    temperatures = models.JSONField(default=dict, blank=True)
-    machine_status = models.JSONField(default=dict, blank=True)
+    capabilities = HostJSONField(default=dict, blank=True)
+    temperatures = HostJSONField(default=dict, blank=True)
+    machine_status = HostJSONField(default=dict, blank=True)
     #: The printer's own SD card as its last M20 listed it: {"present", "files":
     #: [{"name", "size", "long_name"}], "listed" (ISO time), "message"}.
-    sd_card = models.JSONField(default=dict, blank=True)
+    sd_card = HostJSONField(default=dict, blank=True)
     lease_owner = models.CharField(max_length=100, blank=True)
     lease_expires_at = models.DateTimeField(null=True, blank=True)
     worker_seen_at = models.DateTimeField(null=True, blank=True)
@@ -232,7 +232,7 @@ class Printer(models.Model):
     #: "bytes_sent", "bytes_received" (since the connect), "rtt_ms" (mean ack round
     #: trip), "lines_per_s", "link_use" (0..1: bits sent over what the baud rate
     #: carries; both over the last few seconds), "cpu_s" (the worker's CPU seconds)}.
-    link_stats = models.JSONField(default=dict, blank=True)
+    link_stats = HostJSONField(default=dict, blank=True)
 
     class Meta:
         ordering = ["name"]
@@ -368,7 +368,7 @@ class TemperatureSample(models.Model):
 
     printer = models.ForeignKey(Printer, on_delete=models.CASCADE, related_name="+")
     time = models.DateTimeField()
-    temperatures = models.JSONField(default=dict)
+    temperatures = HostJSONField(default=dict)
 
     class Meta:
         ordering = ["printer", "time"]

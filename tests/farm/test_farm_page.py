@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 from django.contrib.auth import get_user_model
+from django.db import connection
 from django.test import Client
 from django.utils import timezone
 
@@ -88,6 +89,28 @@ def test_a_heartbeat_with_junk_for_its_load_leaves_the_pages_up(
         html = page.content.decode()
         assert 'data-host="rack-1"' in html
         assert "· load" not in html and "CPUs" not in html
+
+
+def test_rows_a_worker_wrote_with_integers_too_long_to_read_leave_the_pages_up(
+    farm_printer: Callable[..., Printer],
+) -> None:
+    """Past Python's 4,300 digits int() refuses a number: read as a float, shown as
+    no value, rather than a 500 on every page that reads the host or printer."""
+    rack = WorkerHost.objects.create(name="rack-1", seen_at=timezone.now())
+    farm_printer("mk3-a", worker_host=rack)
+    huge = "9" * 5000
+    with connection.cursor() as cursor:
+        cursor.execute(
+            "UPDATE printers_workerhost SET load = %s, printers = %s",
+            [f'{{"loadavg": [{huge}], "cpus": {huge}}}', f'{{"mk3-a": {huge}}}'],
+        )
+        cursor.execute(
+            "UPDATE printers_printer SET temperatures = %s, link_stats = %s",
+            [f'{{"T0": [{huge}, 200]}}', f'{{"link_use": {huge}}}'],
+        )
+    client = browser("viewer")
+    for path in ("/farm/", "/", "/printer/farm", "/printer/list"):
+        assert client.get(path).status_code == 200, path
 
 
 def test_operators_get_the_queues_buttons_and_the_loaded_forms_of_their_printers(
