@@ -177,6 +177,22 @@ class HostRegistration:
             == 1
         )
 
+    def lost_reason(self) -> str:
+        """Why a beat found no row: another runhost took the name, or (the row still
+        names this one) the database role's row policies no longer cover it."""
+        instance = (
+            WorkerHost.objects.filter(name=self.name)
+            .values_list("instance", flat=True)
+            .first()
+        )
+        if instance == self.instance:
+            return (
+                f"worker host {self.name}: its database role may no longer write "
+                f"its row (its grants name other hosts: manage.py worker_host "
+                f"grants ROLE {self.name})"
+            )
+        return f"worker host {self.name} was claimed by another runhost"
+
     def leave(self) -> None:
         """Give the name back (a clean stop): a restart need not wait."""
         WorkerHost.objects.filter(name=self.name, instance=self.instance).update(

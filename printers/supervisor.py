@@ -216,10 +216,8 @@ class Supervisor:
             self._beat_at = now + settings.PRINTHOST_HEARTBEAT_SECONDS
             still_ours = self._from_database(self._beat)
             if still_ours is False:
-                logger.error(
-                    "worker host %s was claimed by another runhost: stopping this one",
-                    self.worker_host.name,
-                )
+                reason = self._from_database(self.worker_host.lost_reason)
+                logger.error("%s: stopping this runhost", reason or "heartbeat refused")
                 self.shutdown = True
                 return
         for child in self.children.values():

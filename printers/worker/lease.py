@@ -145,6 +145,14 @@ class Lease:
             where = f"worker host {host}" if host else "the control plane's runhost"
             here = f"worker host {self.host}" if self.host else "no worker host"
             return f"printer {self.printer_id} is driven from {where}, not from {here}"
+        if owner == self.owner:
+            # Its row still names this worker, yet the write found no row: the
+            # database role's row policies no longer cover this host.
+            return (
+                f"printer {self.printer_id}: this worker's database role may no "
+                f"longer write its row (the worker host's grants: manage.py "
+                f"worker_host grants ROLE {self.host or 'HOST'})"
+            )
         return f"printer {self.printer_id} is now driven by {owner or 'nobody'}"
 
     def _extend(self) -> bool:
@@ -328,10 +336,7 @@ class Lease:
         with transaction.atomic():
             if self._seen(columns) != 1:
                 self.lost = True
-                raise LeaseLost(
-                    f"printer {self.printer_id}: lease lost "
-                    f"(now held by {self.holder() or 'nobody'})"
-                )
+                raise LeaseLost(f"lease lost: {self._refusal()}")
             yield
 
     def release(self) -> None:

@@ -345,3 +345,19 @@ def test_the_response_log_goes_in_line_for_line_under_the_row_policies(farm):
     assert rows == [(i + 1, text, 4) for i, text in enumerate(AWKWARD)]
     times = control.query("SELECT DISTINCT time FROM printers_responseline")
     assert len(times) == 1
+
+
+def test_a_host_whose_grants_stop_covering_it_stops_and_says_why(farm):
+    control, shelf, role = farm
+    control.manage("worker_host", "add", "shelf-2")
+    _grant(control, role)
+    shelf.env["DATABASE_URL"] = _as_role(control.database_url, role)
+    shelf.env["PRINTHOST_HEARTBEAT_SECONDS"] = "0.5"
+    shelf.env["PRINTHOST_CONTROL_URL"] = "http://127.0.0.1:9"  # no file to fetch
+    ours = "SELECT instance FROM printers_workerhost WHERE name = 'shelf-1'"
+    with shelf.running("--worker-host", "shelf-1", web=False) as runhost:
+        wait_for(lambda: control.query(ours)[0][0] != "", 30, "the host's claim")
+        _grant(control, role, "shelf-2")  # an operator's slip: the wrong host
+        wait_for(lambda: runhost.poll() is not None, 30, "the host to stop")
+    assert "its database role may no longer write its row" in shelf.log_tail(40)
+    assert "claimed by another runhost" not in shelf.log_tail(40)
