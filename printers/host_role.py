@@ -18,11 +18,12 @@ The grants name the worker hosts the role serves, and row-level security keeps i
 writes to their rows (`CONFINED`): its own printers' leases, state, jobs, commands,
 response log, temperatures and history, its own heartbeat. A shelf computer taken
 over cannot start, stop or re-queue a job on another host's printer, answer that
-printer's commands or take its lease. What it still can do: read the rows of every
-printer and job in the columns granted. It adds no job with a stored file (the
-control plane would serve that file to it) and no file analysis. The tables' owner (the control plane's role) is not
-subject to the policies; `confinement_problem` refuses a host role that is not
-confined to the host it runs as.
+printer's commands or take its lease. It adds no job naming a stored file (the
+control plane would serve that file to it) and no file analysis. What it still can
+do: read the rows of every printer and job in the columns granted. The tables'
+owner (the control plane's role) is not subject to the policies;
+`confinement_problem` refuses a host role that is not confined to the host it runs
+as, `control_plane_problem` a control plane on a role the policies hold.
 """
 
 from __future__ import annotations
