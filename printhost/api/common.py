@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from django.db import InterfaceError, OperationalError
 from django.http import HttpRequest, HttpResponse, JsonResponse
+from django.http.multipartparser import MultiPartParserError
 from ninja.errors import AuthenticationError, HttpError, ValidationError
 from ninja.security.base import AuthBase
 from ninja.utils import check_csrf
@@ -248,6 +249,10 @@ def install_error_handlers(api: Any) -> None:
     def _bad_gcode(request: HttpRequest, exc: Exception) -> HttpResponse:
         status = 413 if "over the limit" in str(exc) else 400
         return reply(request, str(exc), status)
+
+    @api.exception_handler(MultiPartParserError)
+    def _bad_multipart(request: HttpRequest, exc: Exception) -> HttpResponse:
+        return reply(request, f"the multipart body could not be read: {exc}", 400)
 
     @api.exception_handler(OperationalError)
     @api.exception_handler(InterfaceError)

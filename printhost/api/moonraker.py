@@ -113,12 +113,17 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
 
     On `/p/farm/` the file goes to the farm queue (requirements as form fields or
     query parameters): `print_queued` is true."""
+    # Who may upload here, before the body is read.
+    farm = is_farm(slug)
+    if farm:
+        farm_caller(request, Role.OPERATOR)
+    else:
+        printer = choose_printer(request, slug, Role.OPERATOR)
     root = request.POST.get("root", "gcodes") or "gcodes"
     if root != "gcodes":
         raise HttpError(400, f"root {root!r} is not supported; use gcodes")
-    if is_farm(slug):
+    if farm:
         return _farm_upload(request)
-    printer = choose_printer(request, slug, Role.OPERATOR)
     to_print = truthy(request.POST.get("print"))
     checksum = request.POST.get("checksum", "").strip()
     busy = (
@@ -151,7 +156,6 @@ def moonraker_upload(request: HttpRequest, slug: str | None = None) -> HttpRespo
 
 
 def _farm_upload(request: HttpRequest) -> HttpResponse:
-    farm_caller(request, Role.OPERATOR)  # before the body is read
     upload = request.FILES.get("file")
     if upload is None:
         raise HttpError(400, "no file part: send the G-code as multipart field 'file'")

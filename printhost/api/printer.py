@@ -193,8 +193,13 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
     """
     # `a` and `id` come from the query for an append: its body is the chunk.
     action = request.GET.get("a") or ""
-    if farm.is_farm(slug) and request.content_type == "multipart/form-data":
-        farm.farm_caller(request, Role.OPERATOR)  # an upload: before its body is read
+    # An upload: who may send it, and where to, before its body is read.
+    target = None
+    if request.content_type == "multipart/form-data" and action in ("", "upload"):
+        if farm.is_farm(slug):
+            farm.farm_caller(request, Role.OPERATOR)
+        else:
+            target = upload_target(request, slug)
     params = (
         {k: request.GET.get(k, "") for k in request.GET}
         if action == "append"
@@ -213,7 +218,7 @@ def job(request: HttpRequest, slug: str) -> HttpResponse:
         return envelope([j.as_dict() for j in jobs])
     refuse_acting_get(request, f"job a={action}")
     if action == "upload":
-        printer = upload_target(request, slug)
+        printer = target or upload_target(request, slug)
         mode = autostart_mode(params.get("autostart"))
         file = uploaded_file(request)
         stored = store_upload(

@@ -59,10 +59,10 @@ def printer_info(request: HttpRequest) -> HttpResponse:
 @router.post("/printer/model/{slug}", summary="Upload a model (stored, not queued)")
 def model_upload(request: HttpRequest, slug: str) -> HttpResponse:
     """PrusaSlicer's "upload": multipart `a=upload`, file part `filename`, `group`."""
+    printer = upload_target(request, slug)  # before the body is read
     params = request_params(request)
     if params.get("a", "upload") != "upload":
         raise HttpError(400, f"a must be upload, not {params.get('a')!r}")
-    printer = upload_target(request, slug)
     stored = store_upload(
         request,
         printer,

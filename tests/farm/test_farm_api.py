@@ -164,6 +164,27 @@ FARM_UPLOADS = (
     "/p/farm/api/files/local",
     "/p/farm/server/files/upload",
 )
+#: A multipart body Django cannot read (no boundary): a 400 once read.
+NO_BOUNDARY: dict[str, Any] = {"data": b"x", "content_type": "multipart/form-data"}
+
+
+def test_every_upload_checks_its_caller_before_its_body_which_if_broken_is_a_400(
+    make_printer: Callable[..., Printer], key: Callable[..., str]
+) -> None:
+    mk3 = make_printer(slug="mk3")
+    make_printer(slug="other")
+    uploads = (
+        "/printer/job/other?a=upload", "/printer/job/other",
+        "/p/other/api/files/local", "/p/other/server/files/upload",
+        "/p/other/api/files/sdcard", "/printer/model/other",
+    )  # fmt: skip
+    outsider, operator = key(printer=mk3), key()
+    for path in uploads + FARM_UPLOADS:
+        refused = Client().post(path, headers={"X-Api-Key": outsider}, **NO_BOUNDARY)
+        assert refused.status_code == 403, (path, refused.content)
+        broken = Client().post(path, headers={"X-Api-Key": operator}, **NO_BOUNDARY)
+        assert broken.status_code == 400, (path, broken.content)
+        assert b"multipart" in broken.content, (path, broken.content)
 
 
 def test_only_an_operator_of_every_printer_with_an_unbound_key_may_queue(
@@ -179,12 +200,9 @@ def test_only_an_operator_of_every_printer_with_an_unbound_key_may_queue(
         status, body = send("post", "/printer/job/farm?a=upload", raw, file=PART)
         assert status == 403, who
         assert "every printer" in body["error"] or "bound" in body["error"], body
-        # Refused before the body is read: a broken one is not even looked at.
+        # Refused before the body is read: one that cannot be parsed is not looked at.
         for path in FARM_UPLOADS:
-            response = Client().post(
-                path, data=b"--x\r\nnot a part", headers={"X-Api-Key": raw},
-                content_type="multipart/form-data; boundary=x",
-            )  # fmt: skip
+            response = Client().post(path, headers={"X-Api-Key": raw}, **NO_BOUNDARY)
             assert response.status_code == 403, (who, path, response.content)
     assert not FarmJob.objects.exists()
     status, _ = send("get", "/printer/farm", key("viewer"))
