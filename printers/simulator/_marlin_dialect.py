@@ -5,7 +5,8 @@ Wording facts (not code) from each firmware's sources:
   Line: <n>`, `Error:checksum mismatch, Last Line: <n>`, `Error:No Checksum with
   line number, Last Line: <n>`; then `Resend: <n+1>` and `ok`.
 - Prusa-Firmware (MK3, Marlin 1.x): the same, plus `Error:No Line Number with
-  checksum, Last Line: <n>` for a `*` without `N`.
+  checksum, Last Line: <n>` for a `*` without `N`. It has no M410 (Marlin_main.cpp
+  has no case for it): `echo:Unknown command: "M410"`, and the planner runs on.
 - Repetier-Firmware (Communication.cpp, gcode.cpp): `Error:expected line <n+1>
   got <m>`, `Error:Wrong checksum`, `Error:Missing checksum`, `Error:Format
   error`; `Resend:<n+1>` and `ok`; a line it already had gets `skip <m>` and `ok`.
@@ -17,6 +18,7 @@ Wording facts (not code) from each firmware's sources:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from printers.simulator import _marlin_text as text
 
@@ -47,6 +49,12 @@ class Dialect:
     skip_duplicates: bool = False
     #: The ok of a numbered line names it (`ok <n>`, Repetier's ACK_WITH_LINENUMBER).
     numbered_ok: bool = False
+    #: Commands this firmware does not have (answered `Unknown command`).
+    lacks: frozenset[str] = frozenset()
+
+    def supported(self, table: dict[str, Any]) -> dict[str, Any]:
+        """A command table without the commands this firmware lacks."""
+        return {name: run for name, run in table.items() if name not in self.lacks}
 
     def rejection(
         self, message: str | None, last: int, got: int | None, ok_order: str
@@ -77,6 +85,7 @@ DIALECTS: dict[str, Dialect] = {
         "prusa",
         no_line_number="Error:No Line Number with checksum, Last Line: {last}",
         resend_no_line_number=False,
+        lacks=frozenset({"M410"}),
     ),
     "repetier": Dialect(
         "repetier",

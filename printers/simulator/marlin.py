@@ -369,7 +369,7 @@ class MarlinFirmware(LineInput):
             table.update(self.sd.handlers())
         if self.objects is not None:
             self.objects.wrap(table)
-        return table
+        return self.dialect.supported(table)
 
     def _m110(self, args: str, now: float) -> None:
         given = words(args)

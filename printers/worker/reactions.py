@@ -107,6 +107,16 @@ class Reactions:
                     # again included.
                     self.protocol.abandon()
                     self.stop_motion_after_error(stream)
+            case ev.FirmwareMessage(text=text) if (
+                self.quickstopped is not None
+                and text.startswith("Unknown command")
+                and "M410" in text
+            ):
+                self.note(
+                    "the firmware does not know M410 (Prusa-Firmware on a MK3 has "
+                    "none): the quickstop did nothing, the planned moves ran out "
+                    "before the abort script; turn quickstop_on_abort off here"
+                )
             case ev.LinkFailed(message=message):
                 self.stop_streams(message, note=True)
                 self._close()

@@ -18,7 +18,7 @@ import pytest
 from django.core.exceptions import ValidationError
 
 from jobs.commands import request_action
-from printers.models import Printer
+from printers.models import Printer, ResponseLine
 from tests.conftest import job_lines, wait_for
 from tests.printers.worker_helpers import job_state, start_worker
 
@@ -63,6 +63,34 @@ def test_a_quickstop_printer_drops_its_planned_moves_before_the_abort_script(
     ran = _abort_with_a_full_planner(sim, printer, make_job(printer, SLOW_MOVES))
     assert ran.index("M410") < ran.index("M400")
     assert len(job_lines(sim)) < 60
+
+
+def test_a_firmware_without_m410_gets_a_note_that_the_quickstop_did_nothing(
+    sim_factory, make_printer, make_job
+):
+    """Prusa-Firmware on a MK3 has no M410: it answers `Unknown command` and its
+    planner runs on, so the operator is told rather than left to trust it."""
+    sim = sim_factory("marlin", "--baud", "250000", "--time-scale", "1",
+                      "--dialect", "prusa")  # fmt: skip
+    printer = make_printer(
+        port=str(sim.link), baud=250000, abort_script=AFTER, quickstop_on_abort=True
+    )
+    make_job(printer, SLOW_MOVES)
+    worker = start_worker(printer)
+    try:
+        wait_for(
+            lambda: len(job_lines(sim)) >= 16, 30, "the planner full", step=worker.tick
+        )
+        request_action(printer, "abort", origin="test")
+        noted = ResponseLine.objects.filter(
+            printer=printer, text__contains="the firmware does not know M410"
+        )
+        wait_for(noted.exists, 10, "the note", step=worker.tick)
+    finally:
+        worker.stop()
+    assert ResponseLine.objects.filter(
+        printer=printer, text='echo:Unknown command: "M410"'
+    ).exists()
 
 
 def test_by_default_an_abort_sends_no_quickstop(sim_factory, make_printer, make_job):
